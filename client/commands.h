@@ -1,0 +1,17 @@
+// Subcommands of the `hapticpd` executable. Each Register* function adds one
+// CLI11 subcommand with its options and callback.
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+namespace hapticpd::cli {
+
+void RegisterVersion(CLI::App& app);
+void RegisterMeshInfo(CLI::App& app);
+
+/// Thrown by a command to exit non-zero with a one-line reason on stderr.
+struct CommandError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+}  // namespace hapticpd::cli

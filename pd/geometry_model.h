@@ -1,0 +1,43 @@
+// The immutable per-mesh model shared by every query: the mesh, its BVH and
+// its mass properties (MuJoCo's model/data split: this is the model).
+#pragma once
+
+#include <algorithm>
+#include <memory>
+
+#include "pd/bvh.h"
+#include "pd/mass_properties.h"
+#include "pd/mesh.h"
+
+namespace hapticpd::pd {
+
+class GeometryModel {
+ public:
+  explicit GeometryModel(Mesh mesh)
+      : mesh_(std::move(mesh)), bvh_(mesh_), mass_(ComputeMassProperties(mesh_)) {
+    for (const Vec3& v : mesh_.vertices()) {
+      radius_about_com_ = std::max(radius_about_com_, (v - mass_.p_MC).norm());
+    }
+  }
+
+  const Mesh& mesh() const { return mesh_; }
+  const Bvh& bvh() const { return bvh_; }
+  const MassProperties& mass() const { return mass_; }
+  /// Inside/outside is defined (point-in-mesh and containment work).
+  bool closed() const { return mesh_.watertight(); }
+  /// Largest distance of a vertex from the centre of mass (m): bounds the
+  /// speed of any point under a rotation about the centre of mass.
+  double radius_about_com() const { return radius_about_com_; }
+
+ private:
+  Mesh mesh_;
+  Bvh bvh_;
+  MassProperties mass_;
+  double radius_about_com_ = 0;
+};
+
+using ModelPtr = std::shared_ptr<const GeometryModel>;
+
+inline ModelPtr MakeModel(Mesh mesh) { return std::make_shared<const GeometryModel>(std::move(mesh)); }
+
+}  // namespace hapticpd::pd

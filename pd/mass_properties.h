@@ -1,0 +1,38 @@
+// Mass properties of a closed triangle mesh by the divergence theorem.
+#pragma once
+
+#include "pd/mesh.h"
+#include "pd/types.h"
+
+namespace hapticpd::pd {
+
+/// Unit-density mass properties, all in the mesh frame M unless noted.
+struct MassProperties {
+  double volume = 0;                 ///< m^3; signed sum, positive for outward winding
+  Vec3 p_MC = Vec3::Zero();          ///< centre of mass C
+  Mat3 I_C_M = Mat3::Zero();         ///< inertia tensor about C, axes of M (kg m^2 per kg/m^3)
+  Vec3 principal_moments = Vec3::Zero();  ///< Ixx <= Iyy <= Izz about C, unit density
+  /// Body frame B: origin at C, axes along the principal axes (columns of
+  /// X_MB.R, a proper rotation). The object norm is defined in this frame.
+  Pose X_MB;
+  /// True when the mesh is watertight; for open meshes the numbers come from
+  /// the same formula but have no physical meaning (documented, flagged).
+  bool exact = false;
+  /// Set when the volume is too small relative to the bounding box to give a
+  /// meaningful centre of mass (flat or open meshes); C then falls back to the
+  /// area-weighted surface centroid and the inertia to that of the surface.
+  bool surface_fallback = false;
+};
+
+/// Computes volume, centre of mass and inertia (Mirtich / Eberly polyhedral
+/// integrals). Meshes with a non-positive or negligible volume (open, flat,
+/// inward-wound) fall back to surface (shell) properties, flagged in the
+/// result, so a body frame always exists.
+MassProperties ComputeMassProperties(const Mesh& mesh);
+
+/// The object-norm weight matrix diag(4 Ixx/V, 4 Iyy/V, 4 Izz/V, 1, 1, 1)
+/// for z = (v, t), with v the vector part of the unit quaternion and t the
+/// translation, both in the body frame (ALGORITHMS.md).
+Mat6 ObjectNormMetric(const MassProperties& mp);
+
+}  // namespace hapticpd::pd

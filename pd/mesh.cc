@@ -1,0 +1,323 @@
+#include "pd/mesh.h"
+
+#include <OpenMesh/Core/IO/MeshIO.hh>
+#include <OpenMesh/Core/IO/importer/ImporterT.hh>
+#include <OpenMesh/Core/Mesh/PolyMesh_ArrayKernelT.hh>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+
+namespace hapticpd::pd {
+namespace {
+
+struct DoubleTraits : public OpenMesh::DefaultTraits {
+  using Point = OpenMesh::Vec3d;
+  using Normal = OpenMesh::Vec3d;
+};
+using OmMesh = OpenMesh::PolyMesh_ArrayKernelT<DoubleTraits>;
+
+// Records the polygon soup exactly as the reader produces it. OpenMesh's own
+// importer splits faces that would make an edge non-manifold onto duplicated
+// vertices; we keep our own copy of the indices so nothing is hidden, and let
+// the base importer run only so the readers' bookkeeping stays valid.
+class SoupImporter final : public OpenMesh::IO::ImporterT<OmMesh> {
+ public:
+  explicit SoupImporter(OmMesh& m) : ImporterT<OmMesh>(m) {}
+
+  OpenMesh::VertexHandle add_vertex(const OpenMesh::Vec3f& p) override {
+    points.emplace_back(p[0], p[1], p[2]);
+    return ImporterT<OmMesh>::add_vertex(p);
+  }
+  OpenMesh::VertexHandle add_vertex(const OpenMesh::Vec3d& p) override {
+    points.emplace_back(p[0], p[1], p[2]);
+    return ImporterT<OmMesh>::add_vertex(p);
+  }
+  OpenMesh::VertexHandle add_vertex() override {
+    points.emplace_back(0.0, 0.0, 0.0);
+    return ImporterT<OmMesh>::add_vertex();
+  }
+  void set_point(OpenMesh::VertexHandle vh, const OpenMesh::Vec3f& p) override {
+    if (vh.is_valid() && static_cast<std::size_t>(vh.idx()) < points.size()) {
+      points[vh.idx()] = Vec3(p[0], p[1], p[2]);
+    }
+    ImporterT<OmMesh>::set_point(vh, p);
+  }
+
+  OpenMesh::FaceHandle add_face(const VHandles& idx) override {
+    std::vector<Index> f;
+    f.reserve(idx.size());
+    bool valid = idx.size() >= 3;
+    for (const auto& vh : idx) {
+      f.push_back(static_cast<Index>(vh.idx()));
+      if (!vh.is_valid() || static_cast<std::size_t>(vh.idx()) >= points.size()) valid = false;
+    }
+    faces.push_back(std::move(f));
+    for (std::size_t i = 0; valid && i < idx.size(); ++i) {
+      for (std::size_t j = i + 1; j < idx.size(); ++j) valid = valid && idx[i] != idx[j];
+    }
+    // Only hand the base importer faces it can take without complaint.
+    if (!valid) return OpenMesh::FaceHandle();
+    return ImporterT<OmMesh>::add_face(idx);
+  }
+
+  std::vector<Vec3> points;
+  std::vector<std::vector<Index>> faces;
+};
+
+std::string Lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+}  // namespace
+
+Mesh Mesh::FromArrays(std::vector<Vec3> vertices, std::vector<Triangle> triangles,
+                      std::string source, const MeshOptions& options) {
+  Mesh m;
+  m.source_ = std::move(source);
+  m.vertices_ = std::move(vertices);
+  m.triangles_ = std::move(triangles);
+  m.Build(options);
+  return m;
+}
+
+void Mesh::Build(const MeshOptions& options) {
+  const std::string& src = source_;
+  if (vertices_.size() > options.max_vertices) {
+    throw MeshError(src + ": " + std::to_string(vertices_.size()) +
+                    " vertices exceed the limit of " + std::to_string(options.max_vertices));
+  }
+  if (triangles_.size() > options.max_triangles) {
+    throw MeshError(src + ": " + std::to_string(triangles_.size()) +
+                    " triangles exceed the limit of " + std::to_string(options.max_triangles));
+  }
+  if (triangles_.empty()) throw MeshError(src + ": the mesh has no triangles");
+  const auto nv = static_cast<Index>(vertices_.size());
+  for (Index i = 0; i < nv; ++i) {
+    const Vec3& p = vertices_[i];
+    if (!p.allFinite()) {
+      std::ostringstream os;
+      os << src << ": vertex " << i << " has a non-finite coordinate (" << p.x() << ", " << p.y()
+         << ", " << p.z() << ")";
+      throw MeshError(os.str());
+    }
+  }
+  std::vector<Triangle> kept;
+  kept.reserve(triangles_.size());
+  for (std::size_t f = 0; f < triangles_.size(); ++f) {
+    const Triangle& t = triangles_[f];
+    for (int k = 0; k < 3; ++k) {
+      if (t[k] < 0 || t[k] >= nv) {
+        throw MeshError(src + ": triangle " + std::to_string(f) + " refers to vertex " +
+                        std::to_string(t[k]) + ", out of range [0, " + std::to_string(nv) + ")");
+      }
+    }
+    if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
+      if (options.degenerate == DegeneratePolicy::kReject) {
+        throw MeshError(src + ": triangle " + std::to_string(f) + " repeats a vertex index");
+      }
+      ++dropped_;
+      continue;
+    }
+    kept.push_back(t);
+  }
+  if (dropped_ > 0) {
+    diagnostics_.push_back(std::to_string(dropped_) +
+                           " triangle(s) repeating a vertex index were dropped");
+  }
+  triangles_ = std::move(kept);
+  if (triangles_.empty()) throw MeshError(src + ": the mesh has no non-degenerate triangles");
+
+  const auto nf = static_cast<Index>(triangles_.size());
+  face_normals_.resize(nf);
+  int first_zero_area = -1;
+  for (Index f = 0; f < nf; ++f) {
+    const Triangle& t = triangles_[f];
+    const Vec3 n = (vertices_[t[1]] - vertices_[t[0]]).cross(vertices_[t[2]] - vertices_[t[0]]);
+    const double len = n.norm();
+    // Zero area relative to the triangle's own edge lengths (scale free).
+    const double scale = std::max({(vertices_[t[1]] - vertices_[t[0]]).squaredNorm(),
+                                   (vertices_[t[2]] - vertices_[t[1]]).squaredNorm(),
+                                   (vertices_[t[0]] - vertices_[t[2]]).squaredNorm()});
+    if (!(len > 1e-14 * scale)) {
+      face_normals_[f] = Vec3::Zero();
+      if (first_zero_area < 0) first_zero_area = f;
+      ++degenerate_kept_;
+    } else {
+      face_normals_[f] = n / len;
+    }
+  }
+  if (degenerate_kept_ > 0) {
+    if (options.degenerate == DegeneratePolicy::kReject) {
+      throw MeshError(src + ": triangle " + std::to_string(first_zero_area) +
+                      " has zero area (" + std::to_string(degenerate_kept_) +
+                      " degenerate triangle(s) in all)");
+    }
+    diagnostics_.push_back(std::to_string(degenerate_kept_) +
+                           " zero-area triangle(s) kept (first: triangle " +
+                           std::to_string(first_zero_area) + ")");
+  }
+
+  // Edge adjacency: sort directed half-edges by their undirected key.
+  struct HalfEdge {
+    Index a, b;  // a < b
+    Index face;
+    std::int8_t k;     // edge slot in the face
+    bool forward;      // face traverses a -> b
+  };
+  std::vector<HalfEdge> he;
+  he.reserve(3 * static_cast<std::size_t>(nf));
+  for (Index f = 0; f < nf; ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const Index u = triangles_[f][k];
+      const Index v = triangles_[f][(k + 1) % 3];
+      he.push_back({std::min(u, v), std::max(u, v), f, static_cast<std::int8_t>(k), u < v});
+    }
+  }
+  std::sort(he.begin(), he.end(), [](const HalfEdge& x, const HalfEdge& y) {
+    return x.a != y.a ? x.a < y.a : (x.b != y.b ? x.b < y.b : x.face < y.face);
+  });
+  face_edges_.assign(nf, {-1, -1, -1});
+  edges_.clear();
+  edges_.reserve(he.size() / 2 + 1);
+  for (std::size_t i = 0; i < he.size();) {
+    std::size_t j = i;
+    while (j < he.size() && he[j].a == he[i].a && he[j].b == he[i].b) ++j;
+    const auto e = static_cast<Index>(edges_.size());
+    Edge edge;
+    edge.v = {he[i].a, he[i].b};
+    edge.f[0] = he[i].face;
+    if (j - i >= 2) edge.f[1] = he[i + 1].face;
+    edges_.push_back(edge);
+    for (std::size_t k = i; k < j; ++k) face_edges_[he[k].face][he[k].k] = e;
+    const std::size_t count = j - i;
+    if (count == 1) {
+      ++boundary_edges_;
+    } else if (count > 2) {
+      ++nonmanifold_edges_;
+    } else if (he[i].forward == he[i + 1].forward) {
+      ++misoriented_edges_;
+    }
+    i = j;
+  }
+  if (boundary_edges_ > 0) {
+    diagnostics_.push_back("open mesh: " + std::to_string(boundary_edges_) + " boundary edge(s)");
+  }
+  if (nonmanifold_edges_ > 0) {
+    diagnostics_.push_back("non-manifold: " + std::to_string(nonmanifold_edges_) +
+                           " edge(s) shared by three or more triangles");
+  }
+  if (misoriented_edges_ > 0) {
+    diagnostics_.push_back("inconsistent orientation: " + std::to_string(misoriented_edges_) +
+                           " edge(s) traversed the same way by both triangles");
+  }
+
+  // Feature ownership: the first face (lowest index) touching a vertex/edge.
+  vertex_owner_.assign(vertices_.size(), -1);
+  owned_mask_.assign(nf, 0);
+  for (Index f = 0; f < nf; ++f) {
+    for (int k = 0; k < 3; ++k) {
+      Index& owner = vertex_owner_[triangles_[f][k]];
+      if (owner < 0) {
+        owner = f;
+        owned_mask_[f] |= static_cast<std::uint8_t>(1u << k);
+      }
+      if (edges_[face_edges_[f][k]].f[0] == f) {
+        owned_mask_[f] |= static_cast<std::uint8_t>(1u << (3 + k));
+      }
+    }
+  }
+  // Faces are sorted by index inside each edge group, so f[0] is the lowest;
+  // a non-manifold edge's extra faces never own it.
+
+  bounds_ = Aabb{};
+  for (Index v = 0; v < nv; ++v) {
+    if (vertex_owner_[v] >= 0) bounds_.Extend(vertices_[v]);
+  }
+  const Vec3 c = bounds_.Center();
+  bounding_radius_ = 0;
+  for (Index v = 0; v < nv; ++v) {
+    if (vertex_owner_[v] >= 0) {
+      bounding_radius_ = std::max(bounding_radius_, (vertices_[v] - c).norm());
+    }
+  }
+}
+
+Mesh Mesh::Transformed(const Pose& X_NM) const {
+  std::vector<Vec3> v(vertices_.size());
+  for (std::size_t i = 0; i < v.size(); ++i) v[i] = X_NM * vertices_[i];
+  MeshOptions opt;
+  return FromArrays(std::move(v), triangles_, source_, opt);
+}
+
+Mesh LoadMesh(const std::string& path, const MeshOptions& options) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw MeshError(path + ": no such file");
+  if (fs::is_directory(path, ec)) throw MeshError(path + ": is a directory, not a mesh file");
+  {
+    std::ifstream probe(path, std::ios::binary);
+    if (!probe) throw MeshError(path + ": cannot be opened for reading");
+  }
+  const std::string ext = Lower(fs::path(path).extension().string());
+  if (ext != ".obj" && ext != ".off" && ext != ".stl" && ext != ".ply") {
+    throw MeshError(path + ": unsupported extension '" + ext +
+                    "' (supported: .obj, .off, .stl, .ply)");
+  }
+  if (fs::file_size(path, ec) == 0) throw MeshError(path + ": file is empty");
+
+  OmMesh om;
+  SoupImporter importer(om);
+  OpenMesh::IO::Options opt;
+  // OpenMesh prints parse complaints on its own error stream; capture them so
+  // they become part of our error message instead of stray stderr output.
+  std::ostringstream om_errors;
+  const bool was_enabled = ::omerr().is_enabled();
+  ::omerr().connect(om_errors);
+  ::omerr().disconnect(std::cerr);
+  bool ok = false;
+  try {
+    ok = OpenMesh::IO::IOManager().read(path, importer, opt);
+  } catch (const std::exception& e) {
+    om_errors << e.what();
+  }
+  ::omerr().disconnect(om_errors);
+  ::omerr().connect(std::cerr);
+  if (!was_enabled) ::omerr().disable();
+
+  std::string why = om_errors.str();
+  std::replace(why.begin(), why.end(), '\n', ' ');
+  while (!why.empty() && why.back() == ' ') why.pop_back();
+  if (!ok && importer.faces.empty()) {
+    throw MeshError(path + ": could not be parsed as " + ext.substr(1) +
+                    (why.empty() ? std::string() : " (" + why + ")"));
+  }
+
+  // Polygons are fan-triangulated; faces with fewer than 3 corners are errors.
+  std::vector<Triangle> tris;
+  tris.reserve(importer.faces.size());
+  const auto nv = static_cast<Index>(importer.points.size());
+  for (std::size_t f = 0; f < importer.faces.size(); ++f) {
+    const auto& poly = importer.faces[f];
+    for (Index i : poly) {
+      if (i < 0 || i >= nv) {
+        throw MeshError(path + ": face " + std::to_string(f) + " refers to vertex " +
+                        std::to_string(i) + ", out of range [0, " + std::to_string(nv) + ")");
+      }
+    }
+    if (poly.size() < 3) {
+      throw MeshError(path + ": face " + std::to_string(f) + " has fewer than 3 vertices");
+    }
+    for (std::size_t k = 1; k + 1 < poly.size(); ++k) tris.push_back({poly[0], poly[k], poly[k + 1]});
+  }
+  if (tris.empty()) {
+    throw MeshError(path + ": no faces found" + (why.empty() ? std::string() : " (" + why + ")"));
+  }
+  return Mesh::FromArrays(std::move(importer.points), std::move(tris), path, options);
+}
+
+}  // namespace hapticpd::pd

@@ -1,0 +1,564 @@
+#include "pd/queries.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+
+#include "pd/primitives.h"
+
+namespace hapticpd::pd {
+namespace {
+
+using internal::BoxFrame;
+
+// A's triangle in B's frame.
+struct TriB {
+  std::array<Vec3, 3> v;
+};
+
+inline TriB TriangleOfA(const Mesh& A, const Pose& X_BA, Index f) {
+  const Triangle& t = A.triangles()[f];
+  const auto& V = A.vertices();
+  return {{X_BA * V[t[0]], X_BA * V[t[1]], X_BA * V[t[2]]}};
+}
+
+inline TriB TriangleOfB(const Mesh& B, Index f) {
+  const Triangle& t = B.triangles()[f];
+  const auto& V = B.vertices();
+  return {{V[t[0]], V[t[1]], V[t[2]]}};
+}
+
+// Which node of a pair to split: the non-leaf one, else the larger.
+inline bool SplitA(const BvhNode& a, const BvhNode& b) {
+  if (a.leaf()) return false;
+  if (b.leaf()) return true;
+  return a.half.squaredNorm() >= b.half.squaredNorm();
+}
+
+// Depth-first pair traversal. `overlap(na, nb)` prunes node pairs;
+// `leaf(fa, fb)` handles a triangle pair and returns false to stop.
+template <typename OverlapFn, typename LeafFn>
+void TraversePairs(const Bvh& ba, const Bvh& bb, QueryScratch* scratch, OverlapFn&& overlap,
+                   LeafFn&& leaf) {
+  auto& stack = scratch->stack;
+  stack.clear();
+  stack.emplace_back(0, 0);
+  const auto& NA = ba.nodes();
+  const auto& NB = bb.nodes();
+  const auto& PA = ba.primitives();
+  const auto& PB = bb.primitives();
+  while (!stack.empty()) {
+    const auto [ia, ib] = stack.back();
+    stack.pop_back();
+    const BvhNode& na = NA[ia];
+    const BvhNode& nb = NB[ib];
+    if (!overlap(na, nb)) continue;
+    if (na.leaf() && nb.leaf()) {
+      for (Index i = 0; i < na.count; ++i) {
+        for (Index j = 0; j < nb.count; ++j) {
+          if (!leaf(PA[na.first + i], PB[nb.first + j])) {
+            stack.clear();
+            return;
+          }
+        }
+      }
+      continue;
+    }
+    if (SplitA(na, nb)) {
+      stack.emplace_back(na.first + 1, ib);
+      stack.emplace_back(na.first, ib);
+    } else {
+      stack.emplace_back(ia, nb.first + 1);
+      stack.emplace_back(ia, nb.first);
+    }
+  }
+}
+
+// Oriented normal of an edge-edge pair from the edges' cross product, or
+// false when the edges are parallel.
+bool EdgeEdgeNormal(const GeometryModel& A, const Mat3& R_BA, Index ea, const GeometryModel& B,
+                    Index eb, const Vec3& a0, const Vec3& a1, const Vec3& b0, const Vec3& b1,
+                    const Vec3& witness_dir, double parallel_sine, Vec3* n) {
+  const Vec3 da = a1 - a0, db = b1 - b0;
+  Vec3 c = da.cross(db);
+  const double len = c.norm();
+  if (!(len > parallel_sine * da.norm() * db.norm()) || len == 0) return false;
+  c /= len;
+  Vec3 sum_b = Vec3::Zero(), sum_a = Vec3::Zero();
+  for (Index f : B.mesh().edges()[eb].f) {
+    if (f >= 0) sum_b += B.mesh().face_normals()[f];
+  }
+  for (Index f : A.mesh().edges()[ea].f) {
+    if (f >= 0) sum_a += R_BA * A.mesh().face_normals()[f];
+  }
+  // Away from B's solid and into the direction opposite A's outward faces.
+  double s = c.dot(sum_b) - c.dot(sum_a);
+  if (std::abs(s) < 1e-12) s = c.dot(witness_dir);
+  *n = s < 0 ? -c : c;
+  return true;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+// Collision and containment
+
+bool PointInside(const GeometryModel& model, const Vec3& p_M, QueryScratch* scratch) {
+  // Directions chosen to be far from any axis or diagonal, so a ray through
+  // an edge of a CAD-like mesh is unlikely; an exact zero in any predicate
+  // still triggers a retry with the next one.
+  static const std::array<Vec3, 8> kDirs = {
+      Vec3(0.5773502691896258, 0.5345224838248488, 0.6172133998483676).normalized(),
+      Vec3(-0.3713906763541037, 0.7427813527082074, 0.5570860145311556).normalized(),
+      Vec3(0.8017837257372732, -0.2672612419124244, 0.5345224838248488).normalized(),
+      Vec3(-0.6246950475544243, -0.4685212856658182, 0.6246950475544243).normalized(),
+      Vec3(0.2182178902359924, 0.8728715609439696, -0.4364357804719848).normalized(),
+      Vec3(-0.7071067811865476, 0.1414213562373095, -0.6928203230275509).normalized(),
+      Vec3(0.4472135954999579, -0.7745966692414834, -0.4472135954999579).normalized(),
+      Vec3(-0.1825741858350554, -0.3651483716701107, -0.9128709291752769).normalized()};
+  const Mesh& mesh = model.mesh();
+  if (!(mesh.bounds().lo.array() <= p_M.array()).all() ||
+      !(p_M.array() <= mesh.bounds().hi.array()).all()) {
+    return false;
+  }
+  const double reach = 2.0 * ((p_M - mesh.bounds().Center()).norm() + mesh.bounding_radius()) +
+                       mesh.size();
+  const auto& nodes = model.bvh().nodes();
+  const auto& prims = model.bvh().primitives();
+  const auto& V = mesh.vertices();
+  const auto& T = mesh.triangles();
+  auto& stack = scratch->stack;
+  int parity = 0;
+  for (const Vec3& dir : kDirs) {
+    const Vec3 q = p_M + reach * dir;
+    const Vec3 inv(1.0 / dir.x(), 1.0 / dir.y(), 1.0 / dir.z());
+    bool ambiguous = false;
+    int crossings = 0;
+    stack.clear();
+    stack.emplace_back(0, 0);
+    while (!stack.empty() && !ambiguous) {
+      const Index i = stack.back().first;
+      stack.pop_back();
+      const BvhNode& n = nodes[i];
+      // Slab test of the segment [p, q] against the (slightly padded) box.
+      const Vec3 pad = n.half.array() + 1e-12 * (n.half.norm() + n.center.norm());
+      const Vec3 t0 = ((n.center - pad - p_M).array() * inv.array()).matrix();
+      const Vec3 t1 = ((n.center + pad - p_M).array() * inv.array()).matrix();
+      const double tmin = t0.cwiseMin(t1).maxCoeff();
+      const double tmax = t0.cwiseMax(t1).minCoeff();
+      if (tmax < std::max(tmin, 0.0) || tmin > reach) continue;
+      if (!n.leaf()) {
+        stack.emplace_back(n.first + 1, 0);
+        stack.emplace_back(n.first, 0);
+        continue;
+      }
+      for (Index k = 0; k < n.count; ++k) {
+        const Triangle& t = T[prims[n.first + k]];
+        const Vec3 &a = V[t[0]], &b = V[t[1]], &c = V[t[2]];
+        const double sp = internal::Orient3d(a, b, c, p_M);
+        const double sq = internal::Orient3d(a, b, c, q);
+        if ((sp > 0 && sq > 0) || (sp < 0 && sq < 0)) continue;
+        const double s0 = internal::Orient3d(p_M, q, a, b);
+        const double s1 = internal::Orient3d(p_M, q, b, c);
+        const double s2 = internal::Orient3d(p_M, q, c, a);
+        const bool all_pos = s0 > 0 && s1 > 0 && s2 > 0;
+        const bool all_neg = s0 < 0 && s1 < 0 && s2 < 0;
+        if (sp == 0 || sq == 0) {
+          // The point lies on the triangle's plane (or the far end does).
+          if ((s0 >= 0 && s1 >= 0 && s2 >= 0) || (s0 <= 0 && s1 <= 0 && s2 <= 0)) {
+            ambiguous = true;
+            break;
+          }
+          continue;
+        }
+        if (all_pos || all_neg) {
+          ++crossings;
+        } else if ((s0 >= 0 && s1 >= 0 && s2 >= 0) || (s0 <= 0 && s1 <= 0 && s2 <= 0)) {
+          ambiguous = true;  // through an edge or vertex
+          break;
+        }
+      }
+    }
+    if (!ambiguous) return (crossings & 1) == 1;
+    parity = crossings & 1;
+  }
+  return parity == 1;
+}
+
+bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+             const CollisionRequest& request, CollisionResult* result, QueryScratch* scratch) {
+  result->colliding = false;
+  result->surfaces_intersect = false;
+  result->containment = Containment::kNone;
+  result->pairs.clear();
+  result->pairs_truncated = false;
+  const Pose X_BA = X_WB.Inverse() * X_WA;
+  const BoxFrame frame(X_BA);
+  const Mesh& ma = A.mesh();
+  const Mesh& mb = B.mesh();
+  const Vec3 zero = Vec3::Zero();
+  TraversePairs(
+      A.bvh(), B.bvh(), scratch,
+      [&](const BvhNode& na, const BvhNode& nb) {
+        return internal::BoxesOverlap(frame, na, nb, 0.0, zero);
+      },
+      [&](Index fa, Index fb) {
+        const TriB ta = TriangleOfA(ma, X_BA, fa);
+        const TriB tb = TriangleOfB(mb, fb);
+        if (!internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
+          return true;
+        }
+        result->surfaces_intersect = true;
+        if (!request.all_pairs) return false;
+        if (result->pairs.size() >= request.max_pairs) {
+          result->pairs_truncated = true;
+          return false;
+        }
+        result->pairs.push_back({fa, fb});
+        return true;
+      });
+  if (result->surfaces_intersect) {
+    result->colliding = true;
+    return true;
+  }
+  if (!request.containment) return false;
+  // No surface crossing: either disjoint or one wholly inside the other; one
+  // vertex of each decides.
+  if (B.closed()) {
+    const Vec3 p_B = X_BA * ma.vertices()[ma.triangles()[0][0]];
+    if (PointInside(B, p_B, scratch)) result->containment = Containment::kAInsideB;
+  }
+  if (result->containment == Containment::kNone && A.closed()) {
+    const Pose X_AB = X_BA.Inverse();
+    const Vec3 p_A = X_AB * mb.vertices()[mb.triangles()[0][0]];
+    if (PointInside(A, p_A, scratch)) result->containment = Containment::kBInsideA;
+  }
+  result->colliding = result->containment != Containment::kNone;
+  return result->colliding;
+}
+
+// ---------------------------------------------------------------------------
+// Proximity
+
+namespace {
+
+// Appends the feature pairs of triangle pair (fa, fb) within `tol`.
+// Everything in B's frame; witnesses are mapped to W on output.
+// Returns false when max_pairs was reached.
+bool CollectFeatures(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
+                     const Pose& X_WB, Index fa, Index fb, double tol,
+                     const ProximityRequest& request, std::vector<FeaturePair>* out) {
+  const Mesh& ma = A.mesh();
+  const Mesh& mb = B.mesh();
+  const TriB ta = TriangleOfA(ma, X_BA, fa);
+  const TriB tb = TriangleOfB(mb, fb);
+  const std::uint8_t own_a = ma.owned_mask(fa);
+  const std::uint8_t own_b = mb.owned_mask(fb);
+  const double tol2 = tol * tol;
+  auto emit = [&](FeatureType type, Index a, Index b, const Vec3& pa, const Vec3& pb,
+                  const Vec3& n_B) {
+    if (out->size() >= request.max_pairs) return false;
+    FeaturePair fp;
+    fp.type = type;
+    fp.a = a;
+    fp.b = b;
+    fp.p_WA = X_WB * pa;
+    fp.p_WB = X_WB * pb;
+    fp.n_W = X_WB.R * n_B;
+    fp.distance = (pa - pb).norm();
+    fp.signed_distance = (pa - pb).dot(n_B);
+    out->push_back(fp);
+    return true;
+  };
+  // Vertex of A against face of B.
+  const Vec3& nb = mb.face_normals()[fb];
+  if (nb.squaredNorm() > 0) {
+    for (int k = 0; k < 3; ++k) {
+      if (!(own_a & (1u << k))) continue;
+      const Vec3 q = internal::ClosestPointOnTriangle(ta.v[k], tb.v[0], tb.v[1], tb.v[2], nullptr);
+      if ((ta.v[k] - q).squaredNorm() <= tol2) {
+        if (!emit(FeatureType::kVertexFace, ma.triangles()[fa][k], fb, ta.v[k], q, nb)) {
+          return false;
+        }
+      }
+    }
+  }
+  // Face of A against vertex of B.
+  const Vec3 na = X_BA.R * ma.face_normals()[fa];
+  if (na.squaredNorm() > 0) {
+    for (int k = 0; k < 3; ++k) {
+      if (!(own_b & (1u << k))) continue;
+      const Vec3 p = internal::ClosestPointOnTriangle(tb.v[k], ta.v[0], ta.v[1], ta.v[2], nullptr);
+      if ((p - tb.v[k]).squaredNorm() <= tol2) {
+        if (!emit(FeatureType::kFaceVertex, fa, mb.triangles()[fb][k], p, tb.v[k], -na)) {
+          return false;
+        }
+      }
+    }
+  }
+  // Edge of A against edge of B.
+  for (int i = 0; i < 3; ++i) {
+    if (!(own_a & (1u << (3 + i)))) continue;
+    const Vec3& a0 = ta.v[i];
+    const Vec3& a1 = ta.v[(i + 1) % 3];
+    for (int j = 0; j < 3; ++j) {
+      if (!(own_b & (1u << (3 + j)))) continue;
+      const Vec3& b0 = tb.v[j];
+      const Vec3& b1 = tb.v[(j + 1) % 3];
+      const internal::SegmentClosest sc = internal::ClosestSegmentSegment(a0, a1, b0, b1);
+      if (sc.dist_sq > tol2) continue;
+      Vec3 n;
+      const Index ea = ma.face_edges(fa)[i];
+      const Index eb = mb.face_edges(fb)[j];
+      if (!EdgeEdgeNormal(A, X_BA.R, ea, B, eb, a0, a1, b0, b1, sc.p - sc.q,
+                          request.parallel_sine, &n)) {
+        continue;
+      }
+      if (!emit(FeatureType::kEdgeEdge, ea, eb, sc.p, sc.q, n)) return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+void Proximity(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
+               const Pose& X_WB, const ProximityRequest& request, ProximityResult* result,
+               QueryScratch* scratch) {
+  result->pairs.clear();
+  result->truncated = false;
+  const Pose X_BA = X_WB.Inverse() * X_WA;
+  const BoxFrame frame(X_BA);
+  const Vec3 zero = Vec3::Zero();
+  const double tol = std::max(0.0, request.tolerance);
+  TraversePairs(
+      A.bvh(), B.bvh(), scratch,
+      [&](const BvhNode& na, const BvhNode& nb) {
+        return internal::BoxesOverlap(frame, na, nb, tol, zero);
+      },
+      [&](Index fa, Index fb) {
+        if (!CollectFeatures(A, X_BA, B, X_WB, fa, fb, tol, request, &result->pairs)) {
+          result->truncated = true;
+          return false;
+        }
+        return true;
+      });
+}
+
+// ---------------------------------------------------------------------------
+// Distance
+
+double Distance(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
+                const Pose& X_WB, DistanceResult* result, QueryScratch* scratch,
+                double lower_cutoff) {
+  const Pose X_BA = X_WB.Inverse() * X_WA;
+  const BoxFrame frame(X_BA);
+  const Mesh& ma = A.mesh();
+  const Mesh& mb = B.mesh();
+  double best = std::numeric_limits<double>::infinity();
+  Vec3 best_pa = Vec3::Zero(), best_pb = Vec3::Zero();
+  Index best_fa = -1, best_fb = -1;
+  auto& stack = scratch->stack;
+  stack.clear();
+  stack.emplace_back(0, 0);
+  const auto& NA = A.bvh().nodes();
+  const auto& NB = B.bvh().nodes();
+  const auto& PA = A.bvh().primitives();
+  const auto& PB = B.bvh().primitives();
+  while (!stack.empty()) {
+    const auto [ia, ib] = stack.back();
+    stack.pop_back();
+    const BvhNode& na = NA[ia];
+    const BvhNode& nb = NB[ib];
+    if (internal::BoxesDistanceLowerBound(frame, na, nb) >= best) continue;
+    if (na.leaf() && nb.leaf()) {
+      for (Index i = 0; i < na.count; ++i) {
+        const Index fa = PA[na.first + i];
+        const TriB ta = TriangleOfA(ma, X_BA, fa);
+        for (Index j = 0; j < nb.count; ++j) {
+          const Index fb = PB[nb.first + j];
+          const TriB tb = TriangleOfB(mb, fb);
+          const internal::TriangleClosest tc = internal::ClosestTriangleTriangle(
+              ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2]);
+          const double d = std::sqrt(tc.dist_sq);
+          if (d < best) {
+            best = d;
+            best_pa = tc.p;
+            best_pb = tc.q;
+            best_fa = fa;
+            best_fb = fb;
+          }
+        }
+      }
+      if (best <= lower_cutoff) break;
+      continue;
+    }
+    // Visit the nearer child first (pushed last).
+    std::pair<Index, Index> c0, c1;
+    if (SplitA(na, nb)) {
+      c0 = {na.first, ib};
+      c1 = {na.first + 1, ib};
+    } else {
+      c0 = {ia, nb.first};
+      c1 = {ia, nb.first + 1};
+    }
+    const double d0 = internal::BoxesDistanceLowerBound(frame, NA[c0.first], NB[c0.second]);
+    const double d1 = internal::BoxesDistanceLowerBound(frame, NA[c1.first], NB[c1.second]);
+    if (d0 <= d1) {
+      stack.push_back(c1);
+      stack.push_back(c0);
+    } else {
+      stack.push_back(c0);
+      stack.push_back(c1);
+    }
+  }
+  stack.clear();
+  if (result) {
+    result->distance = best;
+    result->p_WA = X_WB * best_pa;
+    result->p_WB = X_WB * best_pb;
+    result->triangle_a = best_fa;
+    result->triangle_b = best_fb;
+  }
+  return best;
+}
+
+// ---------------------------------------------------------------------------
+// Continuous collision
+
+namespace {
+
+void CollectContactFeatures(const GeometryModel& A, const GeometryModel& B, const Pose& X_WB,
+                            const CcdRequest& request, CcdResult* result,
+                            QueryScratch* scratch) {
+  result->features.clear();
+  result->features_truncated = false;
+  if (request.feature_tolerance <= 0) return;
+  ProximityRequest preq;
+  preq.tolerance = request.feature_tolerance;
+  preq.max_pairs = request.max_features;
+  ProximityResult pres;
+  pres.pairs.swap(result->features);
+  Proximity(A, result->X_WA_contact, B, X_WB, preq, &pres, scratch);
+  result->features.swap(pres.pairs);
+  result->features_truncated = pres.truncated;
+}
+
+}  // namespace
+
+bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W,
+                      const GeometryModel& B, const Pose& X_WB, const CcdRequest& request,
+                      CcdResult* result, QueryScratch* scratch) {
+  result->hit = false;
+  result->toi = 1;
+  result->iterations = 0;
+  const Pose X_BA = X_WB.Inverse() * X_WA0;
+  const Vec3 d_B = X_WB.R.transpose() * d_W;
+  const BoxFrame frame(X_BA);
+  const Mesh& ma = A.mesh();
+  const Mesh& mb = B.mesh();
+  double t_best = 1;
+  bool hit = false;
+  TraversePairs(
+      A.bvh(), B.bvh(), scratch,
+      [&](const BvhNode& na, const BvhNode& nb) {
+        return internal::BoxesOverlap(frame, na, nb, 0.0, t_best * d_B);
+      },
+      [&](Index fa, Index fb) {
+        const TriB ta = TriangleOfA(ma, X_BA, fa);
+        const TriB tb = TriangleOfB(mb, fb);
+        const std::uint8_t own_a = ma.owned_mask(fa);
+        const std::uint8_t own_b = mb.owned_mask(fb);
+        double t;
+        for (int k = 0; k < 3; ++k) {
+          if ((own_a & (1u << k)) &&
+              internal::PointTriangleToi(ta.v[k], d_B, tb.v[0], tb.v[1], tb.v[2], t_best, &t) &&
+              (!hit || t < t_best)) {
+            t_best = t;
+            hit = true;
+          }
+          if ((own_b & (1u << k)) &&
+              internal::PointTriangleToi(tb.v[k], -d_B, ta.v[0], ta.v[1], ta.v[2], t_best, &t) &&
+              (!hit || t < t_best)) {
+            t_best = t;
+            hit = true;
+          }
+        }
+        for (int i = 0; i < 3; ++i) {
+          if (!(own_a & (1u << (3 + i)))) continue;
+          for (int j = 0; j < 3; ++j) {
+            if (!(own_b & (1u << (3 + j)))) continue;
+            if (internal::SegmentSegmentToi(ta.v[i], ta.v[(i + 1) % 3], d_B, tb.v[j],
+                                            tb.v[(j + 1) % 3], t_best, &t) &&
+                (!hit || t < t_best)) {
+              t_best = t;
+              hit = true;
+            }
+          }
+        }
+        return !(hit && t_best <= 0);
+      });
+  result->hit = hit;
+  result->toi = hit ? t_best : 1.0;
+  result->X_WA_contact = X_WA0;
+  result->X_WA_contact.t += result->toi * d_W;
+  if (hit) CollectContactFeatures(A, B, X_WB, request, result, scratch);
+  return hit;
+}
+
+Pose InterpolateRigid(const Pose& X_WA0, const Pose& X_WA1, const Vec3& p_AC, double t) {
+  const Vec3 c0 = X_WA0 * p_AC;
+  const Vec3 c1 = X_WA1 * p_AC;
+  const Eigen::AngleAxisd aa(X_WA1.R * X_WA0.R.transpose());
+  Pose X;
+  X.R = Eigen::AngleAxisd(t * aa.angle(), aa.axis()).toRotationMatrix() * X_WA0.R;
+  X.t = c0 + t * (c1 - c0) - X.R * p_AC;
+  return X;
+}
+
+bool RigidCcd(const GeometryModel& A, const Pose& X_WA0, const Pose& X_WA1,
+              const GeometryModel& B, const Pose& X_WB, const CcdRequest& request,
+              CcdResult* result, QueryScratch* scratch) {
+  result->hit = false;
+  result->toi = 1;
+  result->iterations = 0;
+  result->features.clear();
+  const Vec3& p_AC = A.mass().p_MC;
+  const double lin = (X_WA1 * p_AC - X_WA0 * p_AC).norm();
+  const double ang = Eigen::AngleAxisd(X_WA1.R * X_WA0.R.transpose()).angle();
+  const double speed = lin + ang * A.radius_about_com();
+  const double tol = std::max(request.distance_tolerance, 0.0);
+  double t = 0;
+  for (int it = 0; it < request.max_iterations; ++it) {
+    result->iterations = it + 1;
+    const Pose X = InterpolateRigid(X_WA0, X_WA1, p_AC, t);
+    const double d = Distance(A, X, B, X_WB, nullptr, scratch, tol);
+    if (d <= tol) {
+      result->hit = true;
+      result->toi = t;
+      result->X_WA_contact = X;
+      CollectContactFeatures(A, B, X_WB, request, result, scratch);
+      return true;
+    }
+    if (speed <= 0) break;
+    // No point moves farther than speed * dt, so nothing can touch before
+    // the distance is used up. Advancing by (d - tol/2) keeps the final
+    // distance near tol instead of crawling towards zero.
+    const double dt = (d - 0.5 * tol) / speed;
+    t += dt;
+    if (t > 1) break;
+  }
+  if (t <= 1 && result->iterations >= request.max_iterations) {
+    // Cap reached while still approaching: report the last safe time.
+    result->hit = true;
+    result->toi = t;
+    result->X_WA_contact = InterpolateRigid(X_WA0, X_WA1, p_AC, t);
+    CollectContactFeatures(A, B, X_WB, request, result, scratch);
+    return true;
+  }
+  result->X_WA_contact = X_WA1;
+  return false;
+}
+
+}  // namespace hapticpd::pd

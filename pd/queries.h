@@ -1,0 +1,169 @@
+// Geometric queries between two meshes A and B under rigid poses: collision,
+// containment, proximity (feature pairs), distance, and continuous collision
+// (translational, exact; rigid motion, conservative advancement).
+//
+// Conventions for every query here:
+//   * X_WA, X_WB: poses of the models' mesh frames in the world W.
+//   * Witness points and normals are expressed in W.
+//   * A normal `n_W` of a feature pair points from B towards A: moving A
+//     along n_W separates the pair locally (it is the direction of a contact
+//     plane in translation space, ALGORITHMS.md step 3).
+//   * Distances are unsigned and in metres.
+// No query allocates once its QueryScratch and result vectors have grown to
+// their working size (reuse them across calls).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "pd/geometry_model.h"
+#include "pd/types.h"
+
+namespace hapticpd::pd {
+
+/// Per-session scratch memory for traversals (the "data" of the model/data
+/// split). Never shared between threads.
+struct QueryScratch {
+  std::vector<std::pair<Index, Index>> stack;
+};
+
+struct TrianglePair {
+  Index a = -1;  ///< triangle of A
+  Index b = -1;  ///< triangle of B
+};
+
+enum class Containment : std::uint8_t {
+  kNone,       ///< neither contains the other (or containment not tested)
+  kAInsideB,   ///< A lies wholly inside closed B, no surface crossing
+  kBInsideA,   ///< B lies wholly inside closed A, no surface crossing
+};
+
+struct CollisionRequest {
+  /// Collect every intersecting triangle pair (otherwise stop at the first).
+  bool all_pairs = false;
+  std::size_t max_pairs = 1u << 20;
+  /// Count full containment of one closed mesh in the other as collision.
+  bool containment = true;
+};
+
+struct CollisionResult {
+  bool colliding = false;           ///< surfaces intersect or containment
+  bool surfaces_intersect = false;  ///< some triangle pair intersects
+  Containment containment = Containment::kNone;
+  std::vector<TrianglePair> pairs;  ///< intersecting pairs (all_pairs only)
+  bool pairs_truncated = false;     ///< max_pairs was reached
+};
+
+/// Do A and B intersect? Closed triangles: touching counts. With
+/// request.containment, one closed mesh wholly inside another also counts
+/// (open meshes cannot contain anything: documented limitation).
+bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+             const CollisionRequest& request, CollisionResult* result, QueryScratch* scratch);
+
+/// Point-in-mesh for a closed model (ray parity with exact orientation
+/// predicates; an ambiguous ray through an edge or vertex is re-cast along
+/// another direction). `p_M` in the model's mesh frame. For open models the
+/// answer is the parity along one ray and carries no guarantee.
+bool PointInside(const GeometryModel& model, const Vec3& p_M, QueryScratch* scratch);
+
+enum class FeatureType : std::uint8_t {
+  kVertexFace,  ///< vertex of A against a face of B
+  kFaceVertex,  ///< face of A against a vertex of B
+  kEdgeEdge,    ///< edge of A against an edge of B
+};
+
+/// A pair of features closer than a tolerance.
+struct FeaturePair {
+  FeatureType type = FeatureType::kVertexFace;
+  Index a = -1;  ///< vertex, face or edge id in A (by type)
+  Index b = -1;  ///< face, vertex or edge id in B (by type)
+  Vec3 p_WA = Vec3::Zero();  ///< witness point on A's feature
+  Vec3 p_WB = Vec3::Zero();  ///< witness point on B's feature
+  /// Unit feature normal from B towards A: VF -> B's face normal; FV -> minus
+  /// A's face normal; EE -> the edges' cross product, oriented away from B
+  /// using the faces adjacent to both edges.
+  Vec3 n_W = Vec3::Zero();
+  double distance = 0;  ///< |p_WA - p_WB|
+  /// (p_WA - p_WB) . n_W: negative when A's feature lies behind B's.
+  double signed_distance = 0;
+};
+
+struct ProximityRequest {
+  double tolerance = 0;  ///< report pairs with distance <= tolerance (m)
+  std::size_t max_pairs = 4096;
+  /// Skip edge-edge pairs whose edges are parallel to within this sine
+  /// (their normal is undefined; the vertex-face pairs cover them).
+  double parallel_sine = 1e-9;
+};
+
+struct ProximityResult {
+  std::vector<FeaturePair> pairs;
+  bool truncated = false;
+};
+
+/// Every vertex-face, face-vertex and edge-edge pair closer than the
+/// tolerance, each reported once (feature ownership, see Mesh).
+void Proximity(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
+               const Pose& X_WB, const ProximityRequest& request, ProximityResult* result,
+               QueryScratch* scratch);
+
+struct DistanceResult {
+  double distance = 0;  ///< 0 when the surfaces intersect
+  Vec3 p_WA = Vec3::Zero();
+  Vec3 p_WB = Vec3::Zero();
+  Index triangle_a = -1;
+  Index triangle_b = -1;
+};
+
+/// Distance between the surfaces of A and B. Stops early once the
+/// distance is known to be below `lower_cutoff` (0 for the exact minimum).
+double Distance(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
+                const Pose& X_WB, DistanceResult* result, QueryScratch* scratch,
+                double lower_cutoff = 0);
+
+struct CcdRequest {
+  /// After the time of impact is found, collect the feature pairs within
+  /// this distance at the contact configuration (0: do not collect).
+  double feature_tolerance = 0;
+  std::size_t max_features = 4096;
+  /// Rigid-motion CCD only: stop when the distance falls below this (m).
+  double distance_tolerance = 1e-6;
+  /// Rigid-motion CCD only: iteration cap of conservative advancement.
+  int max_iterations = 200;
+};
+
+struct CcdResult {
+  bool hit = false;  ///< contact happens for t in [0, 1]
+  double toi = 1;    ///< time of first contact in [0, 1] (1 when no hit)
+  Pose X_WA_contact;  ///< A's pose at toi
+  std::vector<FeaturePair> features;  ///< pairs within feature_tolerance at toi
+  bool features_truncated = false;
+  int iterations = 0;  ///< conservative-advancement steps (rigid CCD)
+};
+
+/// Exact translational CCD: A moves from X_WA0 by the world displacement
+/// d_W over t in [0, 1], B fixed. The time of first contact of the closed
+/// triangles (vertex-face, face-vertex and edge-edge events). If A already
+/// touches B at t = 0 the answer is toi = 0.
+bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W,
+                      const GeometryModel& B, const Pose& X_WB, const CcdRequest& request,
+                      CcdResult* result, QueryScratch* scratch);
+
+/// A's pose at parameter t of the rigid interpolating motion from X_WA0 to
+/// X_WA1 that moves the centre of mass `p_AC` (in A's mesh frame) on a
+/// straight line at constant speed while rotating about it at constant
+/// angular velocity.
+Pose InterpolateRigid(const Pose& X_WA0, const Pose& X_WA1, const Vec3& p_AC, double t);
+
+/// CCD under that rigid motion by conservative advancement: advances while
+/// the distance to B exceeds `distance_tolerance`, using the bound
+/// |v(p)| <= |Δc| + θ r_max on any point's speed. The reported toi is a
+/// safe time (A is collision-free on [0, toi)) at which the distance is at
+/// most distance_tolerance; it under-estimates the exact time by at most
+/// distance_tolerance / (|Δc| + θ r_max). If the cap is reached first, hit
+/// stays true with the last safe time.
+bool RigidCcd(const GeometryModel& A, const Pose& X_WA0, const Pose& X_WA1,
+              const GeometryModel& B, const Pose& X_WB, const CcdRequest& request,
+              CcdResult* result, QueryScratch* scratch);
+
+}  // namespace hapticpd::pd

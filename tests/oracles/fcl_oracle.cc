@@ -1,0 +1,62 @@
+#include "tests/oracles/fcl_oracle.h"
+
+#include <fcl/fcl.h>
+
+namespace hapticpd::testing {
+
+struct FclModel::Impl {
+  std::shared_ptr<fcl::BVHModel<fcl::OBBRSSd>> geom;
+};
+
+FclModel::FclModel(const pd::Mesh& mesh) : impl_(std::make_unique<Impl>()) {
+  std::vector<fcl::Vector3d> v(mesh.vertices().begin(), mesh.vertices().end());
+  std::vector<fcl::Triangle> t;
+  t.reserve(mesh.num_triangles());
+  for (const auto& f : mesh.triangles()) t.emplace_back(f[0], f[1], f[2]);
+  impl_->geom = std::make_shared<fcl::BVHModel<fcl::OBBRSSd>>();
+  impl_->geom->beginModel(static_cast<int>(t.size()), static_cast<int>(v.size()));
+  impl_->geom->addSubModel(v, t);
+  impl_->geom->endModel();
+}
+
+FclModel::~FclModel() = default;
+
+namespace {
+fcl::Transform3d ToFcl(const Pose& X) {
+  fcl::Transform3d T = fcl::Transform3d::Identity();
+  T.linear() = X.R;
+  T.translation() = X.t;
+  return T;
+}
+}  // namespace
+
+bool FclCollide(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB) {
+  fcl::CollisionObjectd oa(a.impl().geom, ToFcl(X_WA));
+  fcl::CollisionObjectd ob(b.impl().geom, ToFcl(X_WB));
+  fcl::CollisionRequestd req;
+  fcl::CollisionResultd res;
+  fcl::collide(&oa, &ob, req, res);
+  return res.isCollision();
+}
+
+int FclContacts(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB,
+                int max_contacts) {
+  fcl::CollisionObjectd oa(a.impl().geom, ToFcl(X_WA));
+  fcl::CollisionObjectd ob(b.impl().geom, ToFcl(X_WB));
+  fcl::CollisionRequestd req(static_cast<std::size_t>(max_contacts), true);
+  fcl::CollisionResultd res;
+  fcl::collide(&oa, &ob, req, res);
+  return static_cast<int>(res.numContacts());
+}
+
+double FclDistance(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB) {
+  fcl::CollisionObjectd oa(a.impl().geom, ToFcl(X_WA));
+  fcl::CollisionObjectd ob(b.impl().geom, ToFcl(X_WB));
+  fcl::DistanceRequestd req;
+  req.enable_nearest_points = false;
+  fcl::DistanceResultd res;
+  fcl::distance(&oa, &ob, req, res);
+  return std::max(0.0, res.min_distance);
+}
+
+}  // namespace hapticpd::testing

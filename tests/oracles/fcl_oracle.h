@@ -1,0 +1,40 @@
+// FCL 0.7 as an independent oracle for tests and as a peer in benchmarks.
+// Only boolean collide and distance are trusted (../shared/docs/PEERS.md):
+// FCL's contact penetration depth and its CCD are not.
+#pragma once
+
+#include <memory>
+
+#include "pd/mesh.h"
+#include "pd/types.h"
+
+namespace hapticpd::testing {
+
+/// An FCL OBBRSS model of a mesh (OBBRSS: with AABB or RSS FCL refits both
+/// models on every mesh-mesh query, PEERS.md).
+class FclModel {
+ public:
+  explicit FclModel(const pd::Mesh& mesh);
+  ~FclModel();
+  FclModel(const FclModel&) = delete;
+  FclModel& operator=(const FclModel&) = delete;
+
+  struct Impl;
+  Impl& impl() const { return *impl_; }
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Do the surfaces intersect? (FCL does not detect containment.)
+bool FclCollide(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB);
+
+/// Number of contacts with all contacts enabled (capped at max_contacts):
+/// the "per-triangle-pair depths" substitute users reach for.
+int FclContacts(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB,
+                int max_contacts = 100000);
+
+/// Surface distance (0 when they intersect).
+double FclDistance(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB);
+
+}  // namespace hapticpd::testing
