@@ -84,8 +84,7 @@ void RunMeshInfo(const MeshInfoOptions& o) {
             << (mp.exact ? "" : "  (approximate: mesh is not watertight)") << "\n"
             << "centre of mass  " << v3(mp.p_MC) << " m\n"
             << "principal I     " << v3(mp.principal_moments) << " m^5 (unit density)\n"
-            << "bounding box    " << v3(mesh.bounds().lo) << " .. " << v3(mesh.bounds().hi)
-            << "\n"
+            << "bounding box    " << v3(mesh.bounds().lo) << " .. " << v3(mesh.bounds().hi) << "\n"
             << "load time       " << ms(t0, t1) << " ms\n"
             << "BVH build       " << ms(t2, t3) << " ms (" << bvh.nodes().size() << " nodes)\n";
   for (const auto& d : mesh.diagnostics()) std::cout << "note            " << d << "\n";

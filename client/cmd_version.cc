@@ -1,6 +1,6 @@
-#include <Eigen/Core>
 #include <OpenMesh/Core/System/config.h>
 #include <spdlog/version.h>
+#include <Eigen/Core>
 
 #include <iostream>
 

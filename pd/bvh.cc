@@ -52,6 +52,7 @@ Bvh::Bvh(const Mesh& mesh) {
       BvhNode& node = nodes_[task.node];
       node.center = box.Center();
       node.half = box.HalfExtent().cwiseMax(0.0);
+      node.size = task.end - task.begin;
     }
     if (count <= kMaxLeafSize) {
       nodes_[task.node].first = task.begin;
@@ -128,9 +129,7 @@ Bvh::Bvh(const Mesh& mesh) {
 
 namespace internal {
 
-BoxFrame::BoxFrame(const Pose& X_BA) : R(X_BA.R), t(X_BA.t) {
-  absR = R.cwiseAbs().array() + 1e-12;
-}
+BoxFrame::BoxFrame(const Pose& X_BA) : R(X_BA.R), t(X_BA.t) { absR = R.cwiseAbs().array() + 1e-12; }
 
 bool BoxesOverlap(const BoxFrame& f, const BvhNode& a, const BvhNode& b, double margin,
                   const Vec3& sweep_B) {
@@ -166,8 +165,8 @@ bool BoxesOverlap(const BoxFrame& f, const BvhNode& a, const BvhNode& b, double 
       // L = e_i x R.col(j); its components: L[i1] = -R(i2,j), L[i2] = R(i1,j).
       const double proj = Ts[i2] * R(i1, j) - Ts[i1] * R(i2, j);
       const double rb = eb[i1] * AR(i2, j) + eb[i2] * AR(i1, j);
-      const double ra = ea[j1] * AR(i, j2) + ea[j2] * AR(i, j1) +
-                        std::abs(hs[i2] * R(i1, j) - hs[i1] * R(i2, j));
+      const double ra =
+          ea[j1] * AR(i, j2) + ea[j2] * AR(i, j1) + std::abs(hs[i2] * R(i1, j) - hs[i1] * R(i2, j));
       // |L| <= 1; comparing unnormalised projections against unnormalised
       // radii and a margin scaled by |L| keeps the test conservative.
       const double len = std::sqrt(R(i1, j) * R(i1, j) + R(i2, j) * R(i2, j));
@@ -178,19 +177,36 @@ bool BoxesOverlap(const BoxFrame& f, const BvhNode& a, const BvhNode& b, double 
 }
 
 double BoxesDistanceLowerBound(const BoxFrame& f, const BvhNode& a, const BvhNode& b) {
+  // The gap along any unit axis is a lower bound on the distance; take the
+  // best of the 15 separating axes (face axes alone are weak for boxes at an
+  // angle, and distance pruning lives on this bound).
   const Vec3 T = f.R * a.center + f.t - b.center;
+  const Mat3& R = f.R;
+  const Mat3& AR = f.absR;
+  const Vec3& ea = a.half;
+  const Vec3& eb = b.half;
   double best = 0;
   for (int i = 0; i < 3; ++i) {
-    const double gap = std::abs(T[i]) - f.absR.row(i).dot(a.half) - b.half[i];
-    best = std::max(best, gap);
+    best = std::max(best, std::abs(T[i]) - AR.row(i).dot(ea) - eb[i]);
   }
   for (int j = 0; j < 3; ++j) {
-    const double gap =
-        std::abs(f.R.col(j).dot(T)) - a.half[j] - f.absR.col(j).dot(b.half);
-    best = std::max(best, gap);
+    best = std::max(best, std::abs(R.col(j).dot(T)) - ea[j] - AR.col(j).dot(eb));
   }
-  // absR carries +1e-12 per entry, so the radii are slight over-estimates and
-  // the gap a slight under-estimate: still a valid lower bound.
+  for (int i = 0; i < 3; ++i) {
+    const int i1 = (i + 1) % 3, i2 = (i + 2) % 3;
+    for (int j = 0; j < 3; ++j) {
+      const int j1 = (j + 1) % 3, j2 = (j + 2) % 3;
+      const double len2 = R(i1, j) * R(i1, j) + R(i2, j) * R(i2, j);
+      if (len2 < 1e-12) continue;  // nearly parallel axes: no usable direction
+      const double proj = T[i2] * R(i1, j) - T[i1] * R(i2, j);
+      const double rb = eb[i1] * AR(i2, j) + eb[i2] * AR(i1, j);
+      const double ra = ea[j1] * AR(i, j2) + ea[j2] * AR(i, j1);
+      const double gap = std::abs(proj) - ra - rb;
+      if (gap > 0) best = std::max(best, gap / std::sqrt(len2));
+    }
+  }
+  // absR carries +1e-12 per entry, so radii are slight over-estimates and
+  // the gaps slight under-estimates: still a valid lower bound.
   return best;
 }
 

@@ -27,6 +27,8 @@ struct BvhNode {
   Index first = 0;
   /// Number of triangles in a leaf; 0 for an internal node.
   Index count = 0;
+  /// Triangles under this node (leaf or internal).
+  Index size = 0;
   bool leaf() const { return count > 0; }
 };
 

@@ -38,6 +38,8 @@ class GeometryModel {
 
 using ModelPtr = std::shared_ptr<const GeometryModel>;
 
-inline ModelPtr MakeModel(Mesh mesh) { return std::make_shared<const GeometryModel>(std::move(mesh)); }
+inline ModelPtr MakeModel(Mesh mesh) {
+  return std::make_shared<const GeometryModel>(std::move(mesh));
+}
 
 }  // namespace hapticpd::pd

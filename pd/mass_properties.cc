@@ -9,7 +9,7 @@ namespace {
 
 // Second moments of a solid or of a shell, accumulated about the origin of M.
 struct Moments {
-  double m = 0;       // volume (solid) or area (shell)
+  double m = 0;  // volume (solid) or area (shell)
   Vec3 first = Vec3::Zero();
   Mat3 second = Mat3::Zero();  // integral of x x^T
 };
@@ -27,8 +27,8 @@ Moments SolidMoments(const Mesh& mesh, const Vec3& origin) {
     const Vec3 s = a + b + c;
     r.m += d / 6.0;
     r.first += d / 24.0 * s;
-    r.second += d / 120.0 * (s * s.transpose() + a * a.transpose() + b * b.transpose() +
-                             c * c.transpose());
+    r.second +=
+        d / 120.0 * (s * s.transpose() + a * a.transpose() + b * b.transpose() + c * c.transpose());
   }
   return r;
 }
@@ -43,8 +43,8 @@ Moments ShellMoments(const Mesh& mesh, const Vec3& origin) {
     const Vec3 s = a + b + c;
     r.m += area;
     r.first += area / 3.0 * s;
-    r.second += area / 12.0 * (s * s.transpose() + a * a.transpose() + b * b.transpose() +
-                               c * c.transpose());
+    r.second += area / 12.0 *
+                (s * s.transpose() + a * a.transpose() + b * b.transpose() + c * c.transpose());
   }
   return r;
 }

@@ -8,9 +8,9 @@ namespace hapticpd::pd {
 
 /// Unit-density mass properties, all in the mesh frame M unless noted.
 struct MassProperties {
-  double volume = 0;                 ///< m^3; signed sum, positive for outward winding
-  Vec3 p_MC = Vec3::Zero();          ///< centre of mass C
-  Mat3 I_C_M = Mat3::Zero();         ///< inertia tensor about C, axes of M (kg m^2 per kg/m^3)
+  double volume = 0;                      ///< m^3; signed sum, positive for outward winding
+  Vec3 p_MC = Vec3::Zero();               ///< centre of mass C
+  Mat3 I_C_M = Mat3::Zero();              ///< inertia tensor about C, axes of M (kg m^2 per kg/m^3)
   Vec3 principal_moments = Vec3::Zero();  ///< Ixx <= Iyy <= Izz about C, unit density
   /// Body frame B: origin at C, axes along the principal axes (columns of
   /// X_MB.R, a proper rotation). The object norm is defined in this frame.

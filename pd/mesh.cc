@@ -6,6 +6,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -67,6 +69,128 @@ class SoupImporter final : public OpenMesh::IO::ImporterT<OmMesh> {
   std::vector<Vec3> points;
   std::vector<std::vector<Index>> faces;
 };
+
+// OpenMesh's OBJ reader silently skips a vertex line it cannot parse (e.g.
+// "v nan 0 0"), which would shift every later index, and silently drops faces
+// that repeat a vertex. Scan the text first so such files fail with the real
+// reason. Returns the number of face lines.
+std::size_t PrescanObj(const std::string& path) {
+  std::ifstream in(path);
+  std::string line;
+  std::size_t lineno = 0, faces = 0;
+  while (std::getline(in, line)) {
+    ++lineno;
+    std::size_t i = line.find_first_not_of(" \t");
+    if (i == std::string::npos || line.compare(i, 2, "v ") != 0) {
+      if (i != std::string::npos && line.compare(i, 2, "f ") == 0) ++faces;
+      continue;
+    }
+    const char* p = line.c_str() + i + 2;
+    for (int k = 0; k < 3; ++k) {
+      char* end = nullptr;
+      const double x = std::strtod(p, &end);
+      if (end == p) {
+        throw MeshError(path + ": line " + std::to_string(lineno) +
+                        ": vertex has fewer than 3 numeric coordinates");
+      }
+      if (!std::isfinite(x)) {
+        throw MeshError(path + ": line " + std::to_string(lineno) +
+                        ": vertex has a non-finite coordinate (" + line.substr(i) + ")");
+      }
+      p = end;
+    }
+  }
+  return faces;
+}
+
+// OFF: OpenMesh's reader keeps going on short or non-numeric input and then
+// hands out uninitialised indices. Check the header counts, every vertex and
+// every face line first.
+void PrescanOff(const std::string& path) {
+  std::ifstream in(path);
+  std::string line;
+  std::size_t lineno = 0;
+  auto next_line = [&]() -> bool {
+    while (std::getline(in, line)) {
+      ++lineno;
+      const auto hash = line.find('#');
+      if (hash != std::string::npos) line.resize(hash);
+      if (line.find_first_not_of(" \t\r") != std::string::npos) return true;
+    }
+    return false;
+  };
+  auto where = [&]() { return path + ": line " + std::to_string(lineno) + ": "; };
+  if (!next_line()) throw MeshError(path + ": file is empty");
+  std::istringstream header(line);
+  std::string magic;
+  header >> magic;
+  if (magic.find("OFF") == std::string::npos) throw MeshError(where() + "missing OFF header");
+  if (magic.size() > 3 && magic != "OFF") return;  // COFF/NOFF/...: leave to the reader
+  long nv = -1, nf = -1, ne = -1;
+  if (!(header >> nv)) {
+    if (!next_line()) throw MeshError(path + ": truncated before the element counts");
+    header = std::istringstream(line);
+    header >> nv;
+  }
+  if (!(header >> nf >> ne) || nv < 0 || nf < 0) {
+    throw MeshError(where() + "bad element counts (expected: vertices faces edges)");
+  }
+  for (long v = 0; v < nv; ++v) {
+    if (!next_line()) {
+      throw MeshError(path + ": truncated: header promises " + std::to_string(nv) +
+                      " vertices, file holds " + std::to_string(v));
+    }
+    const char* p = line.c_str();
+    for (int k = 0; k < 3; ++k) {
+      char* end = nullptr;
+      const double x = std::strtod(p, &end);
+      if (end == p) throw MeshError(where() + "vertex has fewer than 3 numeric coordinates");
+      if (!std::isfinite(x)) throw MeshError(where() + "vertex has a non-finite coordinate");
+      p = end;
+    }
+  }
+  for (long f = 0; f < nf; ++f) {
+    if (!next_line()) {
+      throw MeshError(path + ": truncated: header promises " + std::to_string(nf) +
+                      " faces, file holds " + std::to_string(f));
+    }
+    std::istringstream fs(line);
+    long n = 0;
+    if (!(fs >> n) || n < 3) throw MeshError(where() + "face needs at least 3 vertices");
+    for (long k = 0; k < n; ++k) {
+      long idx = -1;
+      if (!(fs >> idx)) throw MeshError(where() + "face has fewer indices than it declares");
+      if (idx < 0 || idx >= nv) {
+        throw MeshError(where() + "face refers to vertex " + std::to_string(idx) +
+                        ", out of range [0, " + std::to_string(nv) + ")");
+      }
+    }
+  }
+}
+
+// STL: a binary file's size is fixed by its triangle count; a mismatch is a
+// truncated or foreign file unless it is ASCII ("solid ... facet").
+void PrescanStl(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string head(512, '\0');
+  in.read(head.data(), static_cast<std::streamsize>(head.size()));
+  head.resize(static_cast<std::size_t>(in.gcount()));
+  const auto size = std::filesystem::file_size(path);
+  const bool ascii = head.rfind("solid", 0) == 0 && head.find("facet") != std::string::npos;
+  if (size >= 84) {
+    std::uint32_t n = 0;
+    std::memcpy(&n, head.data() + 80, 4);
+    const std::uint64_t expect = 84 + 50ull * n;
+    if (expect == size) return;
+    if (!ascii) {
+      throw MeshError(path + ": not a valid STL: binary header says " + std::to_string(n) +
+                      " triangles (" + std::to_string(expect) + " bytes) but the file has " +
+                      std::to_string(size) + " bytes, and it is not ASCII STL");
+    }
+    return;
+  }
+  if (!ascii) throw MeshError(path + ": not a valid STL: too short for binary and not ASCII");
+}
 
 std::string Lower(std::string s) {
   std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
@@ -153,9 +277,8 @@ void Mesh::Build(const MeshOptions& options) {
   }
   if (degenerate_kept_ > 0) {
     if (options.degenerate == DegeneratePolicy::kReject) {
-      throw MeshError(src + ": triangle " + std::to_string(first_zero_area) +
-                      " has zero area (" + std::to_string(degenerate_kept_) +
-                      " degenerate triangle(s) in all)");
+      throw MeshError(src + ": triangle " + std::to_string(first_zero_area) + " has zero area (" +
+                      std::to_string(degenerate_kept_) + " degenerate triangle(s) in all)");
     }
     diagnostics_.push_back(std::to_string(degenerate_kept_) +
                            " zero-area triangle(s) kept (first: triangle " +
@@ -166,8 +289,8 @@ void Mesh::Build(const MeshOptions& options) {
   struct HalfEdge {
     Index a, b;  // a < b
     Index face;
-    std::int8_t k;     // edge slot in the face
-    bool forward;      // face traverses a -> b
+    std::int8_t k;  // edge slot in the face
+    bool forward;   // face traverses a -> b
   };
   std::vector<HalfEdge> he;
   he.reserve(3 * static_cast<std::size_t>(nf));
@@ -270,6 +393,9 @@ Mesh LoadMesh(const std::string& path, const MeshOptions& options) {
   }
   if (fs::file_size(path, ec) == 0) throw MeshError(path + ": file is empty");
 
+  const std::size_t obj_faces = ext == ".obj" ? PrescanObj(path) : 0;
+  if (ext == ".off") PrescanOff(path);
+  if (ext == ".stl") PrescanStl(path);
   OmMesh om;
   SoupImporter importer(om);
   OpenMesh::IO::Options opt;
@@ -312,12 +438,22 @@ Mesh LoadMesh(const std::string& path, const MeshOptions& options) {
     if (poly.size() < 3) {
       throw MeshError(path + ": face " + std::to_string(f) + " has fewer than 3 vertices");
     }
-    for (std::size_t k = 1; k + 1 < poly.size(); ++k) tris.push_back({poly[0], poly[k], poly[k + 1]});
+    for (std::size_t k = 1; k + 1 < poly.size(); ++k)
+      tris.push_back({poly[0], poly[k], poly[k + 1]});
+  }
+  if (tris.empty() && obj_faces > 0) {
+    throw MeshError(path + ": no non-degenerate triangles (the reader skipped all " +
+                    std::to_string(obj_faces) + " face(s): repeated or invalid vertex indices)");
   }
   if (tris.empty()) {
     throw MeshError(path + ": no faces found" + (why.empty() ? std::string() : " (" + why + ")"));
   }
-  return Mesh::FromArrays(std::move(importer.points), std::move(tris), path, options);
+  Mesh mesh = Mesh::FromArrays(std::move(importer.points), std::move(tris), path, options);
+  if (obj_faces > importer.faces.size()) {
+    mesh.AddDiagnostic(std::to_string(obj_faces - importer.faces.size()) +
+                       " face(s) skipped by the OBJ reader (repeated or invalid vertex indices)");
+  }
+  return mesh;
 }
 
 }  // namespace hapticpd::pd

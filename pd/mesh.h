@@ -112,6 +112,9 @@ class Mesh {
   /// tolerances.
   double size() const { return bounds_.Size().norm(); }
 
+  /// Appends a note to diagnostics() (used by loaders).
+  void AddDiagnostic(std::string note) { diagnostics_.push_back(std::move(note)); }
+
   /// A copy with every vertex mapped through X_NM (new frame N from M).
   Mesh Transformed(const Pose& X_NM) const;
 

@@ -60,8 +60,9 @@ struct CollisionResult {
 bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
              const CollisionRequest& request, CollisionResult* result, QueryScratch* scratch);
 
-/// Point-in-mesh for a closed model (ray parity with exact orientation
-/// predicates; an ambiguous ray through an edge or vertex is re-cast along
+/// Point-in-mesh for a closed model: the winding number along a ray (signed
+/// crossings, so overlapping closed components count as inside), decided with
+/// exact orientation predicates; an ambiguous ray through an edge or vertex is re-cast along
 /// another direction). `p_M` in the model's mesh frame. For open models the
 /// answer is the parity along one ray and carries no guarantee.
 bool PointInside(const GeometryModel& model, const Vec3& p_M, QueryScratch* scratch);

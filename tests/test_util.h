@@ -41,8 +41,8 @@ inline std::filesystem::path SharedModel(const std::string& name) {
 
 #define HAPTICPD_REQUIRE_MODEL(var, name)                                                \
   const auto var = ::hapticpd::testing::SharedModel(name);                               \
-  if (var.empty()) {                                                                      \
-    GTEST_SKIP() << "shared model " << name                                               \
+  if (var.empty()) {                                                                     \
+    GTEST_SKIP() << "shared model " << name                                              \
                  << " not found (expected in ../shared/models or $HAPTICPD_MODELS_DIR)"; \
   }
 

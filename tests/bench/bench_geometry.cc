@@ -62,9 +62,9 @@ void BM_BvhBuild(benchmark::State& state) {
     const auto t0 = std::chrono::steady_clock::now();
     pd::Bvh bvh(g_setup->scene->mesh());
     benchmark::DoNotOptimize(bvh.nodes().data());
-    Record("bvh_build_scene",
-           std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
-               .count());
+    Record(
+        "bvh_build_scene",
+        std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count());
   }
 }
 
@@ -73,9 +73,9 @@ void BM_FclBuild(benchmark::State& state) {
     const auto t0 = std::chrono::steady_clock::now();
     hp::testing::FclModel m(g_setup->scene->mesh());
     benchmark::DoNotOptimize(&m);
-    Record("fcl_build_scene",
-           std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0)
-               .count());
+    Record(
+        "fcl_build_scene",
+        std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count());
   }
 }
 
@@ -234,17 +234,18 @@ int main(int argc, char** argv) {
 
   std::ofstream out(csv);
   out << "query,count,p50_us,p99_us,p999_us,max_us\n";
-  std::cout << "\n" << std::left << std::setw(22) << "query" << std::right << std::setw(8)
-            << "count" << std::setw(12) << "p50 us" << std::setw(12) << "p99 us" << std::setw(12)
-            << "p99.9 us" << std::setw(12) << "max us" << "\n";
+  std::cout << "\n"
+            << std::left << std::setw(22) << "query" << std::right << std::setw(8) << "count"
+            << std::setw(12) << "p50 us" << std::setw(12) << "p99 us" << std::setw(12) << "p99.9 us"
+            << std::setw(12) << "max us"
+            << "\n";
   for (const auto& [name, v] : g_samples) {
-    const double p50 = Percentile(v, 0.5), p99 = Percentile(v, 0.99),
-                 p999 = Percentile(v, 0.999), mx = Percentile(v, 1.0);
+    const double p50 = Percentile(v, 0.5), p99 = Percentile(v, 0.99), p999 = Percentile(v, 0.999),
+                 mx = Percentile(v, 1.0);
     std::cout << std::left << std::setw(22) << name << std::right << std::setw(8) << v.size()
-              << std::fixed << std::setprecision(2) << std::setw(12) << p50 << std::setw(12)
-              << p99 << std::setw(12) << p999 << std::setw(12) << mx << "\n";
-    out << name << "," << v.size() << "," << p50 << "," << p99 << "," << p999 << "," << mx
-        << "\n";
+              << std::fixed << std::setprecision(2) << std::setw(12) << p50 << std::setw(12) << p99
+              << std::setw(12) << p999 << std::setw(12) << mx << "\n";
+    out << name << "," << v.size() << "," << p50 << "," << p99 << "," << p999 << "," << mx << "\n";
   }
   auto ratio = [](const char* ours, const char* peer) {
     const auto a = g_samples.find(ours), b = g_samples.find(peer);

@@ -6,6 +6,9 @@ namespace hapticpd::testing {
 
 struct FclModel::Impl {
   std::shared_ptr<fcl::BVHModel<fcl::OBBRSSd>> geom;
+  // Built once: constructing a CollisionObject walks every vertex to compute
+  // its local AABB, which would otherwise be charged to each query.
+  std::unique_ptr<fcl::CollisionObjectd> object;
 };
 
 FclModel::FclModel(const pd::Mesh& mesh) : impl_(std::make_unique<Impl>()) {
@@ -17,6 +20,7 @@ FclModel::FclModel(const pd::Mesh& mesh) : impl_(std::make_unique<Impl>()) {
   impl_->geom->beginModel(static_cast<int>(t.size()), static_cast<int>(v.size()));
   impl_->geom->addSubModel(v, t);
   impl_->geom->endModel();
+  impl_->object = std::make_unique<fcl::CollisionObjectd>(impl_->geom);
 }
 
 FclModel::~FclModel() = default;
@@ -28,11 +32,16 @@ fcl::Transform3d ToFcl(const Pose& X) {
   T.translation() = X.t;
   return T;
 }
+fcl::CollisionObjectd& Place(const FclModel& m, const Pose& X) {
+  m.impl().object->setTransform(ToFcl(X));
+  m.impl().object->computeAABB();
+  return *m.impl().object;
+}
 }  // namespace
 
 bool FclCollide(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB) {
-  fcl::CollisionObjectd oa(a.impl().geom, ToFcl(X_WA));
-  fcl::CollisionObjectd ob(b.impl().geom, ToFcl(X_WB));
+  fcl::CollisionObjectd& oa = Place(a, X_WA);
+  fcl::CollisionObjectd& ob = Place(b, X_WB);
   fcl::CollisionRequestd req;
   fcl::CollisionResultd res;
   fcl::collide(&oa, &ob, req, res);
@@ -41,8 +50,8 @@ bool FclCollide(const FclModel& a, const Pose& X_WA, const FclModel& b, const Po
 
 int FclContacts(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB,
                 int max_contacts) {
-  fcl::CollisionObjectd oa(a.impl().geom, ToFcl(X_WA));
-  fcl::CollisionObjectd ob(b.impl().geom, ToFcl(X_WB));
+  fcl::CollisionObjectd& oa = Place(a, X_WA);
+  fcl::CollisionObjectd& ob = Place(b, X_WB);
   fcl::CollisionRequestd req(static_cast<std::size_t>(max_contacts), true);
   fcl::CollisionResultd res;
   fcl::collide(&oa, &ob, req, res);
@@ -50,8 +59,8 @@ int FclContacts(const FclModel& a, const Pose& X_WA, const FclModel& b, const Po
 }
 
 double FclDistance(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB) {
-  fcl::CollisionObjectd oa(a.impl().geom, ToFcl(X_WA));
-  fcl::CollisionObjectd ob(b.impl().geom, ToFcl(X_WB));
+  fcl::CollisionObjectd& oa = Place(a, X_WA);
+  fcl::CollisionObjectd& ob = Place(b, X_WB);
   fcl::DistanceRequestd req;
   req.enable_nearest_points = false;
   fcl::DistanceResultd res;

@@ -10,6 +10,8 @@
 
 namespace hapticpd::testing {
 
+/// An FCL OBBRSS model of a mesh. Not thread-safe: queries move its one
+/// collision object (a model used as both A and B in one call is not supported).
 /// An FCL OBBRSS model of a mesh (OBBRSS: with AABB or RSS FCL refits both
 /// models on every mesh-mesh query, PEERS.md).
 class FclModel {

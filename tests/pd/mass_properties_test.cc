@@ -69,7 +69,8 @@ TEST(MassProperties, InvariantUnderRigidTransforms) {
 
 TEST(MassProperties, OpenSurfaceFallsBackAndIsFlagged) {
   const std::vector<Vec3> v = {Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(1, 1, 0), Vec3(0, 1, 0)};
-  const MassProperties mp = ComputeMassProperties(Mesh::FromArrays(v, {{0, 1, 2}, {0, 2, 3}}, "sq"));
+  const MassProperties mp =
+      ComputeMassProperties(Mesh::FromArrays(v, {{0, 1, 2}, {0, 2, 3}}, "sq"));
   EXPECT_TRUE(mp.surface_fallback);
   EXPECT_FALSE(mp.exact);
   EXPECT_LT((mp.p_MC - Vec3(0.5, 0.5, 0)).norm(), 1e-12);

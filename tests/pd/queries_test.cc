@@ -57,7 +57,7 @@ TEST(Collide, BoxesAtKnownOffsets) {
     // Along B's local x: touching at 2 (axis aligned) or at 1 + extent.
     const double reach = 1 + std::cos(angle) + std::sin(angle);
     for (double gap : {-0.1, -1e-6, 1e-6, 0.1}) {
-      const Pose X_BA = RotZ(angle, Vec3(reach + gap, 0.3, 0));
+      const Pose X_BA = RotZ(angle, Vec3(reach + gap, 0.0, 0.2));
       const bool hit = Collide(*box, X_WB * X_BA, *box, X_WB, req, &r, &s);
       EXPECT_EQ(hit, gap < 0) << "angle " << angle << " gap " << gap;
       if (gap > 0) {
@@ -73,8 +73,8 @@ TEST(Collide, TouchingCountsAsCollision) {
   const ModelPtr box = MakeModel(shapes::Box(Vec3::Ones()));
   QueryScratch s;
   CollisionResult r;
-  EXPECT_TRUE(Collide(*box, Pose::FromTranslation(Vec3(2, 0, 0)), *box, Pose::Identity(), {}, &r,
-                      &s));
+  EXPECT_TRUE(
+      Collide(*box, Pose::FromTranslation(Vec3(2, 0, 0)), *box, Pose::Identity(), {}, &r, &s));
   EXPECT_TRUE(r.surfaces_intersect);
 }
 
@@ -157,9 +157,7 @@ TEST(PointInside, MatchesAnalyticShapes) {
 struct FeatureKey {
   int type;
   Index a, b;
-  bool operator<(const FeatureKey& o) const {
-    return std::tie(type, a, b) < std::tie(o.type, o.a, o.b);
-  }
+  auto operator<=>(const FeatureKey&) const = default;
 };
 
 std::set<FeatureKey> BruteForceFeatures(const GeometryModel& A, const Pose& X_WA,
@@ -315,7 +313,7 @@ TEST(FclOracle, StickAgainstBunny) {
   const ModelPtr bunny = MakeModel(LoadMesh(path.string()));
   // The stick scaled to the bunny (the bunny is ~0.15 m across).
   const ModelPtr stick = MakeModel(shapes::Stick());
-  CheckAgainstFcl("stick-bunny", *stick, *bunny, 0.01, testing::TestCount(100),
+  CheckAgainstFcl("stick-bunny", *stick, *bunny, 0.06, testing::TestCount(100),
                   testing::TestSeed());
 }
 

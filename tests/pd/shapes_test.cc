@@ -259,8 +259,22 @@ TEST(ShapesBenchmarkObjects, CountsAndSizes) {
   EXPECT_NEAR(hammer.bounds().Size().x(), 0.11, 1e-12);
 }
 
+bool SameMesh(const Mesh& a, const Mesh& b) {
+  return a.triangles() == b.triangles() && a.vertices() == b.vertices();
+}
+
 TEST(ShapesMakeShape, DefaultsMatchFunctions) {
-  EXPECT_EQ(MakeShape("box").num_triangles(), Box().num_triangles());
+  EXPECT_TRUE(SameMesh(MakeShape("box"), Box()));
+  EXPECT_TRUE(SameMesh(MakeShape("sphere"), Sphere()));
+  EXPECT_TRUE(SameMesh(MakeShape("capsule"), Capsule()));
+  EXPECT_TRUE(SameMesh(MakeShape("cylinder"), Cylinder()));
+  EXPECT_TRUE(SameMesh(MakeShape("stick"), Stick()));
+  EXPECT_TRUE(SameMesh(MakeShape("torus"), Torus()));
+  EXPECT_TRUE(SameMesh(MakeShape("torusknot"), TorusKnot()));
+  EXPECT_TRUE(SameMesh(MakeShape("plate"), ThinPlate()));
+  EXPECT_TRUE(SameMesh(MakeShape("spoon"), Spoon()));
+  EXPECT_TRUE(SameMesh(MakeShape("cup"), Cup()));
+  EXPECT_TRUE(SameMesh(MakeShape("hammer"), Hammer()));
   EXPECT_EQ(MakeShape("sphere").num_triangles(), 1280u);
   EXPECT_EQ(MakeShape("capsule").num_triangles(), 1024u);
   EXPECT_EQ(MakeShape("cylinder").num_triangles(), 128u);

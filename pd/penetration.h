@@ -1,0 +1,94 @@
+// Penetration depth between a probe A and a scene body B: translational
+// (PDt, PolyDepth) and generalized (PDg, PolyDepth++). Request and result
+// types shared by both methods.
+//
+// Frames and signs:
+//   * X_WA is the probe's pose in the world W, X_WB the scene body's. The
+//     probe's mesh frame is whatever the model was built in; PDg works in the
+//     probe's body frame (centre of mass, principal axes: MassProperties).
+//   * The PD vector `translation_W` is the world displacement to apply to the
+//     probe to separate it: X_WA_result.t = X_WA.t + translation_W (PDt).
+//     depth = |translation_W| for PDt, sqrt(sigma) for PDg.
+//   * Region normals n_W point from the scene towards the probe (the direction
+//     the scene pushes the probe), local depths d_i = (d . n_i) n_i, and the
+//     penalty force on the probe is f = sum k d_i.
+//   * Torque is about the probe's centre of mass at its query pose, in W.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "pd/queries.h"
+#include "pd/types.h"
+
+namespace hapticpd::pd {
+
+enum class PdMode : std::uint8_t { kTranslational, kGeneralized };
+
+enum class PdStatus : std::uint8_t {
+  kSeparated,              ///< no collision at the query pose: depth 0
+  kPenetratingSolved,      ///< converged to a verified contact configuration
+  kPenetratingCapReached,  ///< iteration cap hit; best verified contact returned
+  kFailed,                 ///< no answer; `failure` says why
+};
+
+const char* ToString(PdStatus s);
+const char* ToString(PdMode m);
+
+struct PenetrationRequest {
+  /// Contact tolerance as a fraction of the scene body's size (bounding-box
+  /// diagonal, or the probe's if smaller): feature pairs closer than this at
+  /// a contact configuration form the local contact space, and a sample this
+  /// close to contact counts as "in contact".
+  double contact_epsilon = 1e-4;
+  /// Cap on projection iterations (each: in-projection, classification,
+  /// re-projection).
+  int max_iterations = 12;
+  /// Relative improvement below which the iteration stops.
+  double improvement_tolerance = 1e-6;
+  /// Cluster contacts into regions with local depths (needed for force).
+  bool compute_regions = true;
+  /// Region clustering radius as a fraction of the probe's size.
+  double region_radius = 0.05;
+  /// Use and update the motion-coherence cache in QueryData.
+  bool use_coherence = true;
+};
+
+/// One contact feature pair used at the answer.
+struct ContactFeature {
+  FeatureType type = FeatureType::kVertexFace;
+  Index a = -1;
+  Index b = -1;
+  Vec3 p_W = Vec3::Zero();  ///< contact point (on B) at the result pose
+  Vec3 n_W = Vec3::Zero();  ///< unit normal from B towards A
+};
+
+/// A cluster of contacts with one normal and a local penetration depth.
+struct ContactRegion {
+  Vec3 p_W = Vec3::Zero();            ///< representative point, at the query pose
+  Vec3 n_W = Vec3::Zero();            ///< unit normal from B towards A
+  double depth = 0;                   ///< d . n_i (m), >= 0
+  Vec3 local_depth_W = Vec3::Zero();  ///< (d . n_i) n_i
+  int contacts = 0;                   ///< feature pairs merged into this region
+};
+
+struct PenetrationResult {
+  PdStatus status = PdStatus::kFailed;
+  PdMode mode = PdMode::kTranslational;
+  std::string failure;  ///< reason, only for kFailed (not filled on the hot path otherwise)
+  double depth = 0;     ///< |translation| (PDt) or sqrt(sigma) (PDg), metres
+  Vec3 translation_W = Vec3::Zero();
+  Pose X_WA_result;  ///< probe pose at the answer (contact configuration)
+  std::vector<ContactFeature> features;
+  std::vector<ContactRegion> regions;
+  int iterations = 0;
+  double time_us = 0;
+  // PDg only.
+  double sigma = 0;           ///< object-norm squared distance (m^2)
+  double rotation_angle = 0;  ///< radians, of the rotation from X_WA to X_WA_result
+  Vec3 rotation_axis_W = Vec3::UnitZ();
+};
+
+}  // namespace hapticpd::pd
