@@ -501,13 +501,14 @@ inline Vec3 AccurateCross(const Vec3& u, const Vec3& v) {
               DiffOfProducts(u.x(), v.y(), u.y(), v.x()));
 }
 
-// Normal of the parallelogram spanned by u and v, recomputed accurately when
-// the shape ratio |u x v| / scale2 falls below kThinRatio. Sets *thin.
-inline Vec3 ShapeNormal(const Vec3& u, const Vec3& v, double scale2, bool* thin) {
-  Vec3 n = u.cross(v);
-  *thin = n.squaredNorm() < kThinRatio * kThinRatio * scale2 * scale2;
-  if (*thin) n = AccurateCross(u, v);
-  return n;
+// u x v, recomputed with fused multiply-adds when the shape ratio
+// |u x v| / scale2 falls below kThinRatio (scale2: the squared length scale of
+// u and v), where the plain cross product keeps only ~1e-16 / ratio relative
+// accuracy. The result is then the exact normal of the rounded input.
+inline Vec3 ShapeNormal(const Vec3& u, const Vec3& v, double scale2) {
+  const Vec3 n = u.cross(v);
+  if (n.squaredNorm() >= kThinRatio * kThinRatio * scale2 * scale2) return n;
+  return AccurateCross(u, v);
 }
 
 inline double MaxAbs(const Vec3& v) { return v.cwiseAbs().maxCoeff(); }
@@ -531,12 +532,12 @@ SegmentClosest ClosestSegmentSegment(const Vec3& a0, const Vec3& a1, const Vec3&
   if (!(l2 > 0)) return make(ClosestParam(b0, a0, d1, l1), 0);
 
   // Interior critical point of |a0 + s d1 - b0 - t d2|^2 through the common
-  // normal n = d1 x d2: s |n|^2 = ((b0 - a0) x d2) . n and
-  // t |n|^2 = ((b0 - a0) x d1) . n. Unlike the usual normal-equation form
-  // (denominator l1 l2 - (d1.d2)^2, which cancels catastrophically) this is
-  // accurate for nearly parallel segments once n itself is accurate.
-  bool thin;
-  const Vec3 n = d1.cross(d2); thin = false; (void)thin;
+  // normal n = d1 x d2: s |n|^2 = ((b0 - a0) x d2) . n. Unlike the usual
+  // normal-equation form (denominator l1 l2 - (d1.d2)^2, which cancels
+  // catastrophically) this keeps nearly parallel segments accurate.
+  // The plain cross product suffices: its error for nearly parallel
+  // segments only moves s along the valley (see below).
+  const Vec3 n = d1.cross(d2);
   const double nn = n.squaredNorm();
   if (nn > kDegenerateRatio * kDegenerateRatio * l1 * l2) {
     const double s = (b0 - a0).cross(d2).dot(n) / nn;
@@ -572,8 +573,7 @@ Vec3 ClosestPointOnTriangle(const Vec3& p, const Vec3& a, const Vec3& b, const V
     if (bary) *bary = Vec3(1, 0, 0);
     return a;
   }
-  bool thin;
-  const Vec3 n = ShapeNormal(ab, -ca, l2, &thin);
+  const Vec3 n = ShapeNormal(ab, -ca, l2);
   const double nn = n.squaredNorm();
   bool edge_ab = true, edge_bc = true, edge_ca = true;
   if (nn > kDegenerateRatio * kDegenerateRatio * l2 * l2) {
@@ -818,28 +818,25 @@ bool PointTriangleToi(const Vec3& p, const Vec3& d, const Vec3& a, const Vec3& b
   const Vec3 v[3] = {a - p, b - p, c - p};
   const Vec3 ab = b - a, ac = c - a;
   const double l2 = std::max({ab.squaredNorm(), ac.squaredNorm(), (c - b).squaredNorm()});
-  Earliest best;
-  bool use_edges = true;
   if (l2 > tol * tol) {
-    bool thin;
-    const Vec3 n = ShapeNormal(ab, ac, l2, &thin);
+    const Vec3 n = ShapeNormal(ab, ac, l2);
     const double nn = n.squaredNorm();
+    // Thin triangles get an FMA-accurate normal (ShapeNormal): the plane is
+    // then the exact plane of the rounded vertices, whose tilt against the
+    // intended plane (~1e-16 / ratio) is about the sliver's own long axis,
+    // so in-plane motion still crosses it at the sliver. (A plain cross
+    // product would tilt it about any axis and lift far in-plane motion out
+    // of the tol slab.)
     if (nn > kDegenerateRatio * kDegenerateRatio * l2 * l2) {
-      double tt = kInf;
-      const bool h = PointPolygonToiLocal(v, 3, n / std::sqrt(nn), d, t_max, tol, &tt);
-      best.Take(h, tt);
-      // A sliver's plane is tilted by up to ~1e-16 / ratio around its long
-      // axis, which can lift far in-plane motion out of the tol slab; its
-      // edges are exact enough, so test them too.
-      use_edges = thin;
+      return PointPolygonToiLocal(v, 3, n / std::sqrt(nn), d, t_max, tol, t);
     }
   }
-  if (use_edges && !(best.hit && best.t == 0)) {
-    for (int i = 0; i < 3; ++i) {
-      double tt = kInf;
-      const bool h = PointSegmentToiLocal(v[i], v[(i + 1) % 3], d, t_max, tol, &tt);
-      best.Take(h, tt);
-    }
+  // Degenerate: the triangle is (numerically) its edges.
+  Earliest best;
+  for (int i = 0; i < 3; ++i) {
+    double tt = kInf;
+    const bool h = PointSegmentToiLocal(v[i], v[(i + 1) % 3], d, t_max, tol, &tt);
+    best.Take(h, tt);
   }
   if (best.hit) *t = best.t;
   return best.hit;
@@ -858,28 +855,24 @@ bool SegmentSegmentToi(const Vec3& a0, const Vec3& a1, const Vec3& d, const Vec3
   const Vec3 V[4] = {b0 - a0, b1 - a0, b1 - a1, b0 - a1};
   const Vec3 ea = a1 - a0, eb = b1 - b0;
   const double la2 = ea.squaredNorm(), lb2 = eb.squaredNorm();
-  Earliest best;
-  bool use_edges = true;
   if (la2 > tol * tol && lb2 > tol * tol) {
-    bool thin;
-    const Vec3 n = ShapeNormal(ea, eb, std::sqrt(la2 * lb2), &thin);
+    const Vec3 n = ShapeNormal(ea, eb, std::sqrt(la2 * lb2));
     const double nn = n.squaredNorm();
     if (nn > kDegenerateRatio * kDegenerateRatio * la2 * lb2) {
       // Generic case: the plane crossing of the parallelogram is the Cramer
       // solution of a0 + s ea + t d = b0 + u eb; the side walls are s, u in
-      // [0, 1].
-      double tt = kInf;
-      const bool h = PointPolygonToiLocal(V, 4, n / std::sqrt(nn), d, t_max, tol, &tt);
-      best.Take(h, tt);
-      use_edges = thin;  // nearly parallel segments: see PointTriangleToi
+      // [0, 1]. Nearly parallel segments: accurate normal, as for slivers in
+      // PointTriangleToi.
+      return PointPolygonToiLocal(V, 4, n / std::sqrt(nn), d, t_max, tol, t);
     }
   }
-  if (use_edges && !(best.hit && best.t == 0)) {
-    for (int i = 0; i < 4; ++i) {
-      double tt = kInf;
-      const bool h = PointSegmentToiLocal(V[i], V[(i + 1) % 4], d, t_max, tol, &tt);
-      best.Take(h, tt);
-    }
+  // Parallel or zero-length: M is (numerically) the union of its sides, the
+  // four endpoint events.
+  Earliest best;
+  for (int i = 0; i < 4; ++i) {
+    double tt = kInf;
+    const bool h = PointSegmentToiLocal(V[i], V[(i + 1) % 4], d, t_max, tol, &tt);
+    best.Take(h, tt);
   }
   if (best.hit) *t = best.t;
   return best.hit;

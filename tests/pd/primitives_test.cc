@@ -684,6 +684,7 @@ TEST(PrimitivesClosestPointOnTriangle, DegenerateAndSliverTriangles) {
       }
     };
     check(Vec3(0.5, 0.5e-9, 0.25), Vec3(0.5, 0.5e-9, 0));  // above the interior
+    check(Vec3(0.3, 0.2e-9, 0), Vec3(0.3, 0.2e-9, 0));  // in it: distance ~0
     // Beside it in its plane: the foot on edge ac.
     const Vec3 q(0.25, 0.5, 0);
     check(q, (q.dot(c) / c.squaredNorm()) * c);
@@ -760,6 +761,12 @@ TEST(PrimitivesClosestSegmentSegment, KnownAnswers) {
     // height 0.25: the usual normal-equation solution loses this.
     r = run(Vec3(-1, 0, 0), Vec3(1, 0, 0), Vec3(-1, -1e-9, 0.25), Vec3(1, 1e-9, 0.25), 0.25,
             "nearly parallel");
+    // Nearly parallel and crossing, offset along their length: solving s and
+    // t independently leaves the witnesses ~1e-16 / angle apart.
+    for (double angle : {1e-5, 1e-9, 1e-12}) {
+      run(Vec3(-1, 0, 0), Vec3(1, 0, 0), Vec3(-0.3, -1.3 * angle, 0), Vec3(1.7, 0.7 * angle, 0), 0,
+          "nearly parallel crossing");
+    }
   }
 }
 

@@ -1,0 +1,419 @@
+#include "pd/pdt.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+
+#include "pd/material.h"
+#include <cstdio>
+#include <cstdlib>
+
+namespace hapticpd::pd {
+
+const char* ToString(PdStatus s) {
+  switch (s) {
+    case PdStatus::kSeparated:
+      return "separated";
+    case PdStatus::kPenetratingSolved:
+      return "penetrating-solved";
+    case PdStatus::kPenetratingCapReached:
+      return "penetrating-cap-reached";
+    case PdStatus::kFailed:
+      return "failed";
+  }
+  return "unknown";
+}
+
+const char* ToString(PdMode m) {
+  switch (m) {
+    case PdMode::kTranslational:
+      return "pdt";
+    case PdMode::kGeneralized:
+      return "pdg";
+  }
+  return "unknown";
+}
+
+PdQueryData::PdQueryData() {
+  scratch.stack.reserve(256);
+  collision.pairs.reserve(16);
+  ccd.features.reserve(256);
+  best_features.reserve(256);
+  planes.reserve(256);
+  cluster_of.reserve(256);
+}
+
+void PdQueryData::Remember(const CoherenceEntry& e) {
+  coherence[coherence_head_] = e;
+  coherence_head_ = (coherence_head_ + 1) % kCoherenceSlots;
+  coherence_size_ = std::min(coherence_size_ + 1, kCoherenceSlots);
+}
+
+// ---------------------------------------------------------------------------
+// The in-projection QP
+
+bool SolveMinNormQp(const std::vector<ContactPlane>& planes, const Vec3& x0, Vec3* x_out) {
+  // Primal active set (Nocedal & Wright, Alg. 16.3) for min 1/2 |x|^2.
+  // Working set W holds at most 3 linearly independent constraints, since a
+  // blocking constraint always has n . p < 0 for a step p in W's null space.
+  Vec3 x = x0;
+  std::array<int, 3> W{};
+  int nw = 0;
+  const int m = static_cast<int>(planes.size());
+  const double scale = std::max(1e-300, x0.norm());
+  for (int iter = 0; iter < 64 + 4 * m; ++iter) {
+    // Step to the minimiser of |x + p|^2 on the working set's subspace.
+    Vec3 p;
+    Eigen::Vector3d lambda = Eigen::Vector3d::Zero();
+    if (nw == 0) {
+      p = -x;
+    } else {
+      Eigen::Matrix<double, 3, Eigen::Dynamic, 0, 3, 3> N(3, nw);
+      for (int k = 0; k < nw; ++k) N.col(k) = planes[W[k]].n;
+      const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, 3, 3> G = N.transpose() * N;
+      const Eigen::Matrix<double, Eigen::Dynamic, 1, 0, 3, 1> l = G.ldlt().solve(N.transpose() * x);
+      const Vec3 proj = N * l;  // component of x in span(N)
+      p = -(x - proj);
+      lambda.head(nw) = l;
+    }
+    if (p.norm() <= 1e-13 * scale) {
+      // x = N lambda at the subspace minimum: optimal when lambda >= 0.
+      int worst = -1;
+      double most_negative = -1e-14 * scale;
+      for (int k = 0; k < nw; ++k) {
+        if (lambda[k] < most_negative) {
+          most_negative = lambda[k];
+          worst = k;
+        }
+      }
+      if (worst < 0) {
+        *x_out = x;
+        return true;
+      }
+      W[worst] = W[nw - 1];
+      --nw;
+      continue;
+    }
+    // Longest feasible step along p.
+    double alpha = 1.0;
+    int blocking = -1;
+    for (int i = 0; i < m; ++i) {
+      bool in_w = false;
+      for (int k = 0; k < nw; ++k) in_w = in_w || W[k] == i;
+      if (in_w) continue;
+      const double np = planes[i].n.dot(p);
+      if (np >= -1e-15 * p.norm()) continue;
+      const double slack = std::max(0.0, planes[i].n.dot(x) - planes[i].b);
+      const double a = slack / -np;
+      if (a < alpha) {
+        alpha = a;
+        blocking = i;
+      }
+    }
+    x += alpha * p;
+    if (blocking >= 0 && nw < 3) W[nw++] = blocking;
+  }
+  *x_out = x;
+  return false;
+}
+
+// ---------------------------------------------------------------------------
+// Regions and wrench
+
+void BuildRegions(const std::vector<FeaturePair>& features, const Vec3& d_W, double radius,
+                  std::vector<int>* cluster_of, std::vector<ContactRegion>* regions) {
+  regions->clear();
+  cluster_of->assign(features.size(), -1);
+  const double r2 = radius * radius;
+  // Greedy clustering: a contact joins the first region whose seed point is
+  // within `radius` and whose normal is within ~45 degrees.
+  for (std::size_t i = 0; i < features.size(); ++i) {
+    const FeaturePair& f = features[i];
+    const Vec3 p = f.p_WA - d_W;  // the probe's point at the query pose
+    int found = -1;
+    for (std::size_t r = 0; r < regions->size(); ++r) {
+      const ContactRegion& reg = (*regions)[r];
+      const Vec3 seed = reg.p_W / reg.contacts;
+      if ((seed - p).squaredNorm() <= r2 && reg.n_W.normalized().dot(f.n_W) > 0.7) {
+        found = static_cast<int>(r);
+        break;
+      }
+    }
+    if (found < 0) {
+      regions->push_back({});
+      found = static_cast<int>(regions->size()) - 1;
+    }
+    ContactRegion& reg = (*regions)[found];
+    reg.p_W += p;  // sums, normalised below
+    reg.n_W += f.n_W;
+    ++reg.contacts;
+    (*cluster_of)[i] = found;
+  }
+  std::size_t out = 0;
+  for (std::size_t r = 0; r < regions->size(); ++r) {
+    ContactRegion reg = (*regions)[r];
+    reg.p_W /= reg.contacts;
+    const double len = reg.n_W.norm();
+    if (len <= 1e-12) continue;
+    reg.n_W /= len;
+    reg.depth = std::max(0.0, d_W.dot(reg.n_W));
+    reg.local_depth_W = reg.depth * reg.n_W;
+    if (reg.depth <= 0) continue;  // a region the answer moves away from
+    (*regions)[out++] = reg;
+  }
+  regions->resize(out);
+}
+
+Wrench PenaltyWrench(const PenetrationResult& result, const Material& material,
+                     const Vec3& p_WAcm) {
+  Wrench w;
+  if (result.status == PdStatus::kSeparated || result.status == PdStatus::kFailed) return w;
+  if (result.regions.empty()) {
+    w.force = material.stiffness * result.translation_W;
+    return w;
+  }
+  for (const ContactRegion& r : result.regions) {
+    const Vec3 f = material.stiffness * r.local_depth_W;
+    w.force += f;
+    w.torque += (r.p_W - p_WAcm).cross(f);
+  }
+  return w;
+}
+
+// ---------------------------------------------------------------------------
+// PDt
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+Pose Shifted(const Pose& X, const Vec3& x) { return Pose{X.R, X.t + x}; }
+
+struct PdtContext {
+  const GeometryModel& A;
+  const Pose& X_WA;
+  const GeometryModel& B;
+  const Pose& X_WB;
+  const PenetrationRequest& request;
+  PdQueryData& data;
+  double eps;  // absolute contact tolerance (m)
+};
+
+bool Colliding(PdtContext& c, const Vec3& x) {
+  CollisionRequest req;
+  return Collide(c.A, Shifted(c.X_WA, x), c.B, c.X_WB, req, &c.data.collision,
+                 &c.data.scratch);
+}
+
+// CCD from x_from to x_to; on a hit returns the contact offset and fills
+// data.ccd.features.
+bool Sweep(PdtContext& c, const Vec3& x_from, const Vec3& x_to, Vec3* x_contact) {
+  CcdRequest req;
+  req.feature_tolerance = c.eps;
+  if (!TranslationalCcd(c.A, Shifted(c.X_WA, x_from), x_to - x_from, c.B, c.X_WB, req, &c.data.ccd,
+                        &c.data.scratch)) {
+    return false;
+  }
+  *x_contact = x_from + c.data.ccd.toi * (x_to - x_from);
+  return true;
+}
+
+// A free offset far enough along unit u that the bounding spheres are apart.
+Vec3 OutsideAlong(const PdtContext& c, const Vec3& u) {
+  const Vec3 cA = c.X_WA * c.A.mesh().bounds().Center();
+  const Vec3 cB = c.X_WB * c.B.mesh().bounds().Center();
+  const double rA = c.A.mesh().bounding_radius(), rB = c.B.mesh().bounding_radius();
+  // Need |cA + s u - cB| > rA + rB: s = (cB - cA).u + sqrt(...) suffices, take
+  // a simple sufficient value.
+  const double s = (cB - cA).dot(u) + (cB - cA).norm() + rA + rB + 2 * c.eps;
+  return u * std::max(s, 2 * c.eps);
+}
+
+// Offset of the best coherent free start, or false.
+bool CoherentStart(PdtContext& c, Vec3* x_free) {
+  PdQueryData& d = c.data;
+  if (!c.request.use_coherence || d.coherence_size_ == 0) return false;
+  const Pose X_BW = c.X_WB.Inverse();
+  const Vec3 p_BAo = X_BW * c.X_WA.t;
+  // Try the two entries nearest to the current pose.
+  int order[2] = {-1, -1};
+  double dist[2] = {std::numeric_limits<double>::infinity(),
+                    std::numeric_limits<double>::infinity()};
+  for (int i = 0; i < d.coherence_size_; ++i) {
+    const double di = (d.coherence[i].p_BAo - p_BAo).squaredNorm();
+    if (di < dist[0]) {
+      order[1] = order[0];
+      dist[1] = dist[0];
+      order[0] = i;
+      dist[0] = di;
+    } else if (di < dist[1]) {
+      order[1] = i;
+      dist[1] = di;
+    }
+  }
+  for (int k = 0; k < 2 && order[k] >= 0; ++k) {
+    const PdQueryData::CoherenceEntry& e = d.coherence[order[k]];
+    // A stored contact is touching: push it out a little along its direction.
+    for (double push : {2.0, 20.0}) {
+      const Vec3 p_B = e.p_BAo + e.dir_B * (push * c.eps);
+      const Vec3 x = c.X_WB * p_B - c.X_WA.t;
+      if (!Colliding(c, x)) {
+        *x_free = x;
+        return true;
+      }
+      if (e.dir_B.squaredNorm() == 0) break;
+    }
+  }
+  return false;
+}
+
+// Builds the local contact space from CCD features at contact offset x_c.
+void BuildPlanes(const std::vector<FeaturePair>& features, const Vec3& x_c,
+                 std::vector<ContactPlane>* planes) {
+  planes->clear();
+  for (const FeaturePair& f : features) {
+    const Vec3& n = f.n_W;
+    if (!(n.squaredNorm() > 0.5)) continue;  // degenerate normal: dropped
+    // Gap at x: g + n.(x - x_c) >= 0.
+    const double b = n.dot(x_c) - f.signed_distance;
+    bool merged = false;
+    for (ContactPlane& p : *planes) {
+      if (p.n.dot(n) > 1 - 1e-8) {  // near-parallel: keep the tightest
+        p.b = std::max(p.b, b);
+        merged = true;
+        break;
+      }
+    }
+    if (!merged) planes->push_back({n, b});
+  }
+}
+
+}  // namespace
+
+void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
+                const Pose& X_WB, const PenetrationRequest& request, PdQueryData* data,
+                PenetrationResult* result) {
+  const auto t0 = Clock::now();
+  result->mode = PdMode::kTranslational;
+  result->failure.clear();
+  result->features.clear();
+  result->regions.clear();
+  result->iterations = 0;
+  result->depth = 0;
+  result->translation_W.setZero();
+  result->X_WA_result = X_WA;
+  result->sigma = 0;
+  result->rotation_angle = 0;
+  result->rotation_axis_W = Vec3::UnitZ();
+  const double size = std::min(A.mesh().size(), B.mesh().size());
+  PdtContext c{A, X_WA, B, X_WB, request, *data, std::max(request.contact_epsilon, 1e-12) * size};
+  auto finish = [&](PdStatus status) {
+    result->status = status;
+    result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+  };
+
+  const Pose X_BW = X_WB.Inverse();
+  if (!Colliding(c, Vec3::Zero())) {
+    if (request.use_coherence) {
+      data->Remember({X_BW * X_WA.t, X_BW.R * X_WA.R, Vec3::Zero()});
+    }
+    finish(PdStatus::kSeparated);
+    return;
+  }
+
+  // 1. Free start and out-projection.
+  Vec3 best = Vec3::Zero();
+  bool have_best = false;
+  Vec3 x_free;
+  if (CoherentStart(c, &x_free)) {
+    Vec3 x_c;
+    if (Sweep(c, x_free, Vec3::Zero(), &x_c)) {
+      best = x_c;
+      have_best = true;
+      data->best_features = data->ccd.features;
+    }
+  }
+  if (!have_best) {
+    Vec3 u = X_WA * A.mass().p_MC - X_WB * B.mesh().bounds().Center();
+    if (u.norm() < 1e-12 * size) u = Vec3::UnitZ();
+    u.normalize();
+    Vec3 x_c;
+    if (Sweep(c, OutsideAlong(c, u), Vec3::Zero(), &x_c)) {
+      best = x_c;
+      have_best = true;
+      data->best_features = data->ccd.features;
+    }
+  }
+  if (!have_best) {
+    result->failure = "no contact found along the out-projection from a free start";
+    finish(PdStatus::kFailed);
+    return;
+  }
+
+  // 2-5. Iterate: local contact space, in-projection, classification.
+  PdStatus status = PdStatus::kPenetratingCapReached;
+  for (int it = 0; it < request.max_iterations; ++it) {
+    result->iterations = it + 1;
+    BuildPlanes(data->best_features, best, &data->planes);
+    if (data->planes.empty()) {
+      status = PdStatus::kPenetratingSolved;
+      break;
+    }
+    Vec3 x_star;
+    SolveMinNormQp(data->planes, best, &x_star);
+    const double best_norm = best.norm();
+    if (x_star.norm() >= best_norm * (1 - request.improvement_tolerance) - 0.1 * c.eps) {
+      status = PdStatus::kPenetratingSolved;  // best is optimal in its contact space
+      break;
+    }
+    Vec3 x_new;
+    bool improved = false;
+    if (std::getenv("PDT_DEBUG")) {
+      std::printf("it %d best %g (%g %g %g) planes %zu x* %g (%g %g %g)\n", it, best_norm, best.x(), best.y(), best.z(), data->planes.size(), x_star.norm(), x_star.x(), x_star.y(), x_star.z());
+      for (auto& f : data->best_features) std::printf("  feat type %d n %g %g %g sd %g\n", (int)f.type, f.n_W.x(), f.n_W.y(), f.n_W.z(), f.signed_distance);
+    }
+    if (!Colliding(c, x_star)) {
+      // Free: out-project again towards the query pose.
+      // (toi = 0 means x* itself is a contact; its features still refine
+      // the local contact space on the next iteration.)
+      if (Sweep(c, x_star, Vec3::Zero(), &x_new) && x_new.norm() < best_norm) improved = true;
+    } else {
+      // In collision: back off from the best contact to its free side and
+      // sweep towards x*.
+      Vec3 n_avg = Vec3::Zero();
+      for (const FeaturePair& f : data->best_features) n_avg += f.n_W;
+      n_avg = n_avg.norm() > 1e-12 ? n_avg.normalized() : best.normalized();
+      Vec3 x_back = best + n_avg * (2 * c.eps);
+      if (Colliding(c, x_back)) x_back = best + best.normalized() * (2 * c.eps);
+      if (!Colliding(c, x_back) && Sweep(c, x_back, x_star, &x_new) &&
+          x_new.norm() < best_norm * (1 - request.improvement_tolerance)) {
+        improved = true;
+      }
+    }
+    if (!improved) {
+      status = PdStatus::kPenetratingSolved;  // no improvement: local optimum
+      break;
+    }
+    best = x_new;
+    data->best_features = data->ccd.features;
+  }
+
+  result->translation_W = best;
+  result->depth = best.norm();
+  result->X_WA_result = Shifted(X_WA, best);
+  for (const FeaturePair& f : data->best_features) {
+    result->features.push_back({f.type, f.a, f.b, f.p_WB, f.n_W});
+  }
+  if (request.compute_regions) {
+    BuildRegions(data->best_features, best, request.region_radius * A.mesh().size(),
+                 &data->cluster_of, &result->regions);
+  }
+  if (request.use_coherence) {
+    data->Remember({X_BW * result->X_WA_result.t, X_BW.R * X_WA.R,
+                    X_BW.R * (result->depth > 0 ? Vec3(best / result->depth) : Vec3(Vec3::Zero()))});
+  }
+  finish(status);
+}
+
+}  // namespace hapticpd::pd
