@@ -6,6 +6,7 @@
 #include <memory>
 
 #include "pd/bvh.h"
+#include "pd/convex.h"
 #include "pd/mass_properties.h"
 #include "pd/mesh.h"
 
@@ -14,7 +15,10 @@ namespace hapticpd::pd {
 class GeometryModel {
  public:
   explicit GeometryModel(Mesh mesh)
-      : mesh_(std::move(mesh)), bvh_(mesh_), mass_(ComputeMassProperties(mesh_)) {
+      : mesh_(std::move(mesh)),
+        bvh_(mesh_),
+        mass_(ComputeMassProperties(mesh_)),
+        convex_(IsConvexMesh(mesh_)) {
     for (const Vec3& v : mesh_.vertices()) {
       radius_about_com_ = std::max(radius_about_com_, (v - mass_.p_MC).norm());
     }
@@ -25,6 +29,8 @@ class GeometryModel {
   const MassProperties& mass() const { return mass_; }
   /// Inside/outside is defined (point-in-mesh and containment work).
   bool closed() const { return mesh_.watertight(); }
+  /// A convex polytope (closed, genus 0, no reflex edge).
+  bool convex() const { return convex_; }
   /// Largest distance of a vertex from the centre of mass (m): bounds the
   /// speed of any point under a rotation about the centre of mass.
   double radius_about_com() const { return radius_about_com_; }
@@ -34,6 +40,7 @@ class GeometryModel {
   Bvh bvh_;
   MassProperties mass_;
   double radius_about_com_ = 0;
+  bool convex_ = false;
 };
 
 using ModelPtr = std::shared_ptr<const GeometryModel>;

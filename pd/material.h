@@ -7,11 +7,11 @@
 namespace hapticpd::pd {
 
 struct Material {
-  double stiffness = 1000.0;            ///< k, N/m (translational penalty)
-  double rotational_stiffness = 0.05;   ///< xi, N m/rad (PDg rotation spring)
-  double damping = 0.0;                 ///< N s/m inside contact
-  double static_friction = 0.0;         ///< mu_s
-  double dynamic_friction = 0.0;        ///< mu_d
+  double stiffness = 1000.0;           ///< k, N/m (translational penalty)
+  double rotational_stiffness = 0.05;  ///< xi, N m/rad (PDg rotation spring)
+  double damping = 0.0;                ///< N s/m inside contact
+  double static_friction = 0.0;        ///< mu_s
+  double dynamic_friction = 0.0;       ///< mu_d
 };
 
 /// Penalty wrench on the probe from a PD result (seed eqs. 3-7 for PDt):
@@ -19,7 +19,6 @@ struct Material {
 /// tau = sum_i (p_i - c) x f_i about the probe's centre of mass `p_WAcm` at
 /// its query pose. Falls back to f = k d at the centre of mass when the result
 /// has no regions. Zero wrench for a separated or failed result.
-Wrench PenaltyWrench(const PenetrationResult& result, const Material& material,
-                     const Vec3& p_WAcm);
+Wrench PenaltyWrench(const PenetrationResult& result, const Material& material, const Vec3& p_WAcm);
 
 }  // namespace hapticpd::pd

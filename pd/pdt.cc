@@ -5,9 +5,10 @@
 #include <cmath>
 #include <limits>
 
-#include "pd/material.h"
 #include <cstdio>
 #include <cstdlib>
+#include "pd/convex.h"
+#include "pd/material.h"
 
 namespace hapticpd::pd {
 
@@ -125,9 +126,12 @@ void BuildRegions(const std::vector<FeaturePair>& features, const Vec3& d_W, dou
                   std::vector<int>* cluster_of, std::vector<ContactRegion>* regions) {
   regions->clear();
   cluster_of->assign(features.size(), -1);
-  const double r2 = radius * radius;
-  // Greedy clustering: a contact joins the first region whose seed point is
-  // within `radius` and whose normal is within ~45 degrees.
+  const double r2 = radius > 0 ? radius * radius : std::numeric_limits<double>::infinity();
+  // Greedy clustering: a contact joins the first region whose normal is
+  // within ~14 degrees and whose mean point is within `radius`. Clustering by
+  // normal keeps one planar contact one region (its corners would otherwise
+  // each add k d and multiply the force); the radius separates distinct
+  // patches that happen to share a normal far apart on a large probe.
   for (std::size_t i = 0; i < features.size(); ++i) {
     const FeaturePair& f = features[i];
     const Vec3 p = f.p_WA - d_W;  // the probe's point at the query pose
@@ -135,7 +139,7 @@ void BuildRegions(const std::vector<FeaturePair>& features, const Vec3& d_W, dou
     for (std::size_t r = 0; r < regions->size(); ++r) {
       const ContactRegion& reg = (*regions)[r];
       const Vec3 seed = reg.p_W / reg.contacts;
-      if ((seed - p).squaredNorm() <= r2 && reg.n_W.normalized().dot(f.n_W) > 0.7) {
+      if ((seed - p).squaredNorm() <= r2 && reg.n_W.normalized().dot(f.n_W) > 0.97) {
         found = static_cast<int>(r);
         break;
       }
@@ -202,8 +206,7 @@ struct PdtContext {
 
 bool Colliding(PdtContext& c, const Vec3& x) {
   CollisionRequest req;
-  return Collide(c.A, Shifted(c.X_WA, x), c.B, c.X_WB, req, &c.data.collision,
-                 &c.data.scratch);
+  return Collide(c.A, Shifted(c.X_WA, x), c.B, c.X_WB, req, &c.data.collision, &c.data.scratch);
 }
 
 // CCD from x_from to x_to; on a hit returns the contact offset and fills
@@ -291,9 +294,8 @@ void BuildPlanes(const std::vector<FeaturePair>& features, const Vec3& x_c,
 
 }  // namespace
 
-void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
-                const Pose& X_WB, const PenetrationRequest& request, PdQueryData* data,
-                PenetrationResult* result) {
+void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+                const PenetrationRequest& request, PdQueryData* data, PenetrationResult* result) {
   const auto t0 = Clock::now();
   result->mode = PdMode::kTranslational;
   result->failure.clear();
@@ -334,15 +336,44 @@ void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B
       data->best_features = data->ccd.features;
     }
   }
-  if (!have_best) {
-    Vec3 u = X_WA * A.mass().p_MC - X_WB * B.mesh().bounds().Center();
-    if (u.norm() < 1e-12 * size) u = Vec3::UnitZ();
-    u.normalize();
-    Vec3 x_c;
-    if (Sweep(c, OutsideAlong(c, u), Vec3::Zero(), &x_c)) {
-      best = x_c;
+  if (!have_best && A.convex() && B.convex()) {
+    // Cold start between convex polytopes: the exact answer directly (the
+    // iteration below only confirms it).
+    const ConvexPdtResult cr = ConvexPdt(A.mesh(), X_WA, B.mesh(), X_WB);
+    if (cr.overlapping) {
+      ProximityRequest preq;
+      preq.tolerance = c.eps;
+      ProximityResult pres;
+      pres.pairs.swap(data->best_features);
+      Proximity(A, Shifted(X_WA, cr.translation_W), B, X_WB, preq, &pres, &data->scratch);
+      data->best_features.swap(pres.pairs);
+      best = cr.translation_W;
       have_best = true;
-      data->best_features = data->ccd.features;
+    }
+  }
+  if (!have_best) {
+    // Cold start on general meshes: directional out-projections along the
+    // centroid direction and both bodies' principal axes; the shallowest
+    // contact seeds the iteration.
+    Vec3 u0 = X_WA * A.mass().p_MC - X_WB * B.mesh().bounds().Center();
+    u0 = u0.norm() < 1e-12 * size ? Vec3(Vec3::UnitZ()) : Vec3(u0.normalized());
+    std::array<Vec3, 13> dirs;
+    dirs[0] = u0;
+    for (int k = 0; k < 3; ++k) {
+      dirs[1 + 2 * k] = X_WB.R * B.mass().X_MB.R.col(k);
+      dirs[2 + 2 * k] = -dirs[1 + 2 * k];
+      dirs[7 + 2 * k] = X_WA.R * A.mass().X_MB.R.col(k);
+      dirs[8 + 2 * k] = -dirs[7 + 2 * k];
+    }
+    const int count = request.cold_start_directions <= 1 ? 1 : 13;
+    for (int k = 0; k < count; ++k) {
+      Vec3 x_c;
+      if (Sweep(c, OutsideAlong(c, dirs[k]), Vec3::Zero(), &x_c) &&
+          (!have_best || x_c.norm() < best.norm())) {
+        best = x_c;
+        have_best = true;
+        data->best_features = data->ccd.features;
+      }
     }
   }
   if (!have_best) {
@@ -369,10 +400,6 @@ void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B
     }
     Vec3 x_new;
     bool improved = false;
-    if (std::getenv("PDT_DEBUG")) {
-      std::printf("it %d best %g (%g %g %g) planes %zu x* %g (%g %g %g)\n", it, best_norm, best.x(), best.y(), best.z(), data->planes.size(), x_star.norm(), x_star.x(), x_star.y(), x_star.z());
-      for (auto& f : data->best_features) std::printf("  feat type %d n %g %g %g sd %g\n", (int)f.type, f.n_W.x(), f.n_W.y(), f.n_W.z(), f.signed_distance);
-    }
     if (!Colliding(c, x_star)) {
       // Free: out-project again towards the query pose.
       // (toi = 0 means x* itself is a contact; its features still refine
@@ -410,8 +437,9 @@ void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B
                  &data->cluster_of, &result->regions);
   }
   if (request.use_coherence) {
-    data->Remember({X_BW * result->X_WA_result.t, X_BW.R * X_WA.R,
-                    X_BW.R * (result->depth > 0 ? Vec3(best / result->depth) : Vec3(Vec3::Zero()))});
+    data->Remember(
+        {X_BW * result->X_WA_result.t, X_BW.R * X_WA.R,
+         X_BW.R * (result->depth > 0 ? Vec3(best / result->depth) : Vec3(Vec3::Zero()))});
   }
   finish(status);
 }

@@ -63,9 +63,8 @@ class PdQueryData {
 bool SolveMinNormQp(const std::vector<ContactPlane>& planes, const Vec3& x0, Vec3* x);
 
 /// Translational PD of probe A at X_WA against body B at X_WB.
-void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
-                const Pose& X_WB, const PenetrationRequest& request, PdQueryData* data,
-                PenetrationResult* result);
+void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+                const PenetrationRequest& request, PdQueryData* data, PenetrationResult* result);
 
 /// Clusters the result's features into regions (used by ComputePdt when
 /// request.compute_regions is set; exposed for PDg). `d_W` is the PD

@@ -50,10 +50,20 @@ struct PenetrationRequest {
   double improvement_tolerance = 1e-6;
   /// Cluster contacts into regions with local depths (needed for force).
   bool compute_regions = true;
-  /// Region clustering radius as a fraction of the probe's size.
-  double region_radius = 0.05;
+  /// Contacts whose normals agree within ~14 degrees form one region. With a
+  /// positive radius (a fraction of the probe's size) such contacts farther
+  /// apart than the radius form separate regions; 0 (default) clusters by
+  /// normal only, so one planar contact is one region whatever its extent
+  /// (each region adds k (d.n) n, so splitting a face contact into patches
+  /// would multiply its force).
+  double region_radius = 0;
   /// Use and update the motion-coherence cache in QueryData.
   bool use_coherence = true;
+  /// Cold start (nothing usable in the coherence cache) on non-convex
+  /// models: 1 = out-project along the centroid direction only; >1 = also
+  /// along both bodies' principal axes (13 directions) and keep the
+  /// shallowest. Convex pairs start from the exact convex answer.
+  int cold_start_directions = 13;
 };
 
 /// One contact feature pair used at the answer.

@@ -20,10 +20,11 @@
 // absolute coordinate involved, so that they scale with coordinates of 1e-3
 // or 1e4 alike):
 //   * Orient2d, Orient3d, TrianglesIntersect: exact, no tolerance.
-//   * Closest-point routines: plain double arithmetic; no tolerance decides
-//     their output, only how to handle degenerate and nearly degenerate
-//     input (see kThinRatio, kDegenerateRatio). Error ~ a few ulp of S for
-//     well-shaped input.
+//   * Closest-point routines: plain double arithmetic (FMA for thin shapes);
+//     no tolerance decides their output, only how degenerate and nearly
+//     degenerate input is handled (kThinRatio, kDegenerateRatio). Distances
+//     are accurate to a few ulp of S, slivers and nearly parallel segments
+//     included (checked to 1e-12 S by the tests).
 //   * Time of impact: contact means "within kContactTol * S" (see below).
 #pragma once
 
@@ -47,13 +48,16 @@ inline constexpr double kContactTol = 1e-12;
 /// Shape ratio below which a triangle (2 * area / longest_edge^2, about its
 /// height over its longest edge) or a segment pair (sine of the angle between
 /// them) counts as thin: its normal is then recomputed with fused
-/// multiply-adds (the plain cross product loses ~1e-16 / ratio relative
-/// accuracy), and the time-of-impact routines also test the boundary edges,
-/// because the plane of a sliver is ill-determined far from the sliver.
+/// multiply-adds, since the plain cross product keeps only ~1e-16 / ratio
+/// relative accuracy. The accurate normal is the exact normal of the rounded
+/// input, so a sliver's plane can only be tilted about the sliver's own long
+/// axis, which keeps projections onto it and in-plane motion near it exact to
+/// round-off. (std::fma is a library call without hardware FMA; only thin
+/// shapes pay for it.)
 inline constexpr double kThinRatio = 1e-3;
 
 /// Shape ratio at or below which a triangle is treated as the segments it
-/// (numerically) is, and a segment pair as parallel: the plane is then not
+/// (numerically) is, and a segment pair as parallel: its plane is then not
 /// used at all. 64 ulp.
 inline constexpr double kDegenerateRatio = 64 * 0x1p-53;
 
@@ -149,20 +153,22 @@ struct SegmentClosest {
   Vec3 q;
 };
 
-/// Closest pair of points of two closed segments. Robust for parallel,
-/// nearly parallel and zero-length segments (a zero-length segment reports
-/// parameter 0). For nearly parallel segments the answer is the best of the
-/// interior critical point and the four endpoint-to-segment candidates, so the
-/// distance is accurate to a few ulp of the coordinates.
+/// Closest pair of points of two closed segments: the interior critical point
+/// when it lies in both segments, else the best of the four
+/// endpoint-to-segment candidates. Robust for parallel, nearly parallel (even
+/// crossing) and zero-length segments (a zero-length segment reports
+/// parameter 0); the distance is accurate to a few ulp of the coordinates.
 SegmentClosest ClosestSegmentSegment(const Vec3& a0, const Vec3& a1, const Vec3& b0,
                                      const Vec3& b1);
 
 /// Closest point to p on the closed triangle abc. When `bary` is not null it
 /// receives barycentric weights (u, v, w), u + v + w = 1, all >= 0, with
-/// result = u a + v b + w c (to round-off; for slivers whose height is below
-/// kThinRatio times their longest edge the weights are only accurate to
-/// ~1e-16 / ratio, the returned point stays accurate). A degenerate triangle
-/// is treated as its longest edge (or as a point).
+/// result = u a + v b + w c to round-off. Barycentric weights of a sliver are
+/// ill-conditioned (accurate to ~1e-16 / ratio, ratio = height / longest
+/// edge), so for a point inside the triangle the result is the orthogonal
+/// projection itself, which stays accurate, and only the weights carry that
+/// error. A degenerate triangle (ratio <= kDegenerateRatio) is treated as its
+/// edges, or as a point when its vertices coincide.
 Vec3 ClosestPointOnTriangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3& c, Vec3* bary);
 
 /// Closest points between two triangles: p on triangle P, q on triangle Q,
@@ -196,15 +202,20 @@ TriangleClosest ClosestTriangleTriangle(const Vec3& p0, const Vec3& p1, const Ve
 
 /// Point p moving as p + t d against the closed triangle abc. Handles motion
 /// in the triangle's plane (2-D entry through an edge or vertex), p already on
-/// the triangle (t = 0), and degenerate triangles (as their edges).
+/// the triangle (t = 0), slivers, and degenerate triangles (as their edges).
+/// Implementation: the moving point is clipped (Liang-Barsky) against the
+/// triangle's zero-thickness slab, side walls and a cap along its longest
+/// edge, all inflated by tol.
 bool PointTriangleToi(const Vec3& p, const Vec3& d, const Vec3& a, const Vec3& b, const Vec3& c,
                       double t_max, double* t);
 
 /// Segment a0a1 moving as a + t d against the fixed closed segment b0b1. The
 /// generic case is the solution of a0 + s (a1 - a0) + t d = b0 + u (b1 - b0)
-/// with s, u in [0, 1]; coplanar motion, parallel, collinear and zero-length
-/// segments reduce to the four endpoint events (an endpoint of a moving along
-/// d against segment b, an endpoint of b moving along -d against segment a).
+/// with s, u in [0, 1] (the origin moving along d against the parallelogram
+/// {b(u) - a(s)}, clipped as in PointTriangleToi, which also covers motion in
+/// the plane of both segments); parallel, collinear and zero-length segments
+/// reduce to the four endpoint events (an endpoint of a moving along d against
+/// segment b, an endpoint of b moving along -d against segment a).
 bool SegmentSegmentToi(const Vec3& a0, const Vec3& a1, const Vec3& d, const Vec3& b0,
                        const Vec3& b1, double t_max, double* t);
 

@@ -366,6 +366,13 @@ bool CollectFeatures(const GeometryModel& A, const Pose& X_BA, const GeometryMod
       const Vec3& b1 = tb.v[(j + 1) % 3];
       const internal::SegmentClosest sc = internal::ClosestSegmentSegment(a0, a1, b0, b1);
       if (sc.dist_sq > tol2) continue;
+      // A closest point at an edge's end is a vertex contact: its pairs with
+      // the adjacent faces describe it, and the edges' cross product there is
+      // no contact normal (it would push along an arbitrary diagonal).
+      if (!(sc.s > kEdgeInterior && sc.s < 1 - kEdgeInterior && sc.t > kEdgeInterior &&
+            sc.t < 1 - kEdgeInterior)) {
+        continue;
+      }
       Vec3 n;
       const Index ea = ma.face_edges(fa)[i];
       const Index eb = mb.face_edges(fb)[j];

@@ -33,9 +33,9 @@ struct TrianglePair {
 };
 
 enum class Containment : std::uint8_t {
-  kNone,       ///< neither contains the other (or containment not tested)
-  kAInsideB,   ///< A lies wholly inside closed B, no surface crossing
-  kBInsideA,   ///< B lies wholly inside closed A, no surface crossing
+  kNone,      ///< neither contains the other (or containment not tested)
+  kAInsideB,  ///< A lies wholly inside closed B, no surface crossing
+  kBInsideA,  ///< B lies wholly inside closed A, no surface crossing
 };
 
 struct CollisionRequest {
@@ -76,8 +76,8 @@ enum class FeatureType : std::uint8_t {
 /// A pair of features closer than a tolerance.
 struct FeaturePair {
   FeatureType type = FeatureType::kVertexFace;
-  Index a = -1;  ///< vertex, face or edge id in A (by type)
-  Index b = -1;  ///< face, vertex or edge id in B (by type)
+  Index a = -1;              ///< vertex, face or edge id in A (by type)
+  Index b = -1;              ///< face, vertex or edge id in B (by type)
   Vec3 p_WA = Vec3::Zero();  ///< witness point on A's feature
   Vec3 p_WB = Vec3::Zero();  ///< witness point on B's feature
   /// Unit feature normal from B towards A: VF -> B's face normal; FV -> minus
@@ -88,6 +88,11 @@ struct FeaturePair {
   /// (p_WA - p_WB) . n_W: negative when A's feature lies behind B's.
   double signed_distance = 0;
 };
+
+/// Edge-edge pairs count only when both closest points lie inside their
+/// edges by more than this fraction of the edge length; at an endpoint the
+/// contact is a vertex contact, described by vertex-face pairs.
+inline constexpr double kEdgeInterior = 1e-9;
 
 struct ProximityRequest {
   double tolerance = 0;  ///< report pairs with distance <= tolerance (m)
@@ -104,9 +109,8 @@ struct ProximityResult {
 
 /// Every vertex-face, face-vertex and edge-edge pair closer than the
 /// tolerance, each reported once (feature ownership, see Mesh).
-void Proximity(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
-               const Pose& X_WB, const ProximityRequest& request, ProximityResult* result,
-               QueryScratch* scratch);
+void Proximity(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+               const ProximityRequest& request, ProximityResult* result, QueryScratch* scratch);
 
 struct DistanceResult {
   double distance = 0;  ///< 0 when the surfaces intersect
@@ -118,9 +122,8 @@ struct DistanceResult {
 
 /// Distance between the surfaces of A and B. Stops early once the
 /// distance is known to be below `lower_cutoff` (0 for the exact minimum).
-double Distance(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
-                const Pose& X_WB, DistanceResult* result, QueryScratch* scratch,
-                double lower_cutoff = 0);
+double Distance(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+                DistanceResult* result, QueryScratch* scratch, double lower_cutoff = 0);
 
 struct CcdRequest {
   /// After the time of impact is found, collect the feature pairs within
@@ -134,9 +137,9 @@ struct CcdRequest {
 };
 
 struct CcdResult {
-  bool hit = false;  ///< contact happens for t in [0, 1]
-  double toi = 1;    ///< time of first contact in [0, 1] (1 when no hit)
-  Pose X_WA_contact;  ///< A's pose at toi
+  bool hit = false;                   ///< contact happens for t in [0, 1]
+  double toi = 1;                     ///< time of first contact in [0, 1] (1 when no hit)
+  Pose X_WA_contact;                  ///< A's pose at toi
   std::vector<FeaturePair> features;  ///< pairs within feature_tolerance at toi
   bool features_truncated = false;
   int iterations = 0;  ///< conservative-advancement steps (rigid CCD)
@@ -163,8 +166,8 @@ Pose InterpolateRigid(const Pose& X_WA0, const Pose& X_WA1, const Vec3& p_AC, do
 /// most distance_tolerance; it under-estimates the exact time by at most
 /// distance_tolerance / (|Δc| + θ r_max). If the cap is reached first, hit
 /// stays true with the last safe time.
-bool RigidCcd(const GeometryModel& A, const Pose& X_WA0, const Pose& X_WA1,
-              const GeometryModel& B, const Pose& X_WB, const CcdRequest& request,
-              CcdResult* result, QueryScratch* scratch);
+bool RigidCcd(const GeometryModel& A, const Pose& X_WA0, const Pose& X_WA1, const GeometryModel& B,
+              const Pose& X_WB, const CcdRequest& request, CcdResult* result,
+              QueryScratch* scratch);
 
 }  // namespace hapticpd::pd

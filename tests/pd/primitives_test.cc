@@ -684,7 +684,7 @@ TEST(PrimitivesClosestPointOnTriangle, DegenerateAndSliverTriangles) {
       }
     };
     check(Vec3(0.5, 0.5e-9, 0.25), Vec3(0.5, 0.5e-9, 0));  // above the interior
-    check(Vec3(0.3, 0.2e-9, 0), Vec3(0.3, 0.2e-9, 0));  // in it: distance ~0
+    check(Vec3(0.3, 0.2e-9, 0), Vec3(0.3, 0.2e-9, 0));     // in it: distance ~0
     // Beside it in its plane: the foot on edge ac.
     const Vec3 q(0.25, 0.5, 0);
     check(q, (q.dot(c) / c.squaredNorm()) * c);

@@ -193,7 +193,10 @@ std::set<FeatureKey> BruteForceFeatures(const GeometryModel& A, const Pose& X_WA
       const Vec3 &b0 = mb.vertices()[eb.v[0]], &b1 = mb.vertices()[eb.v[1]];
       const auto sc = internal::ClosestSegmentSegment(a0, a1, b0, b1);
       const Vec3 c = (a1 - a0).cross(b1 - b0);
-      if (std::sqrt(sc.dist_sq) <= tol && c.norm() > 1e-9 * (a1 - a0).norm() * (b1 - b0).norm()) {
+      const bool interior = sc.s > kEdgeInterior && sc.s < 1 - kEdgeInterior &&
+                            sc.t > kEdgeInterior && sc.t < 1 - kEdgeInterior;
+      if (std::sqrt(sc.dist_sq) <= tol && interior &&
+          c.norm() > 1e-9 * (a1 - a0).norm() * (b1 - b0).norm()) {
         out.insert({2, i, j});
       }
     }

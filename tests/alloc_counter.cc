@@ -1,0 +1,31 @@
+#include "tests/alloc_counter.h"
+
+#include <cstdlib>
+#include <new>
+
+namespace {
+thread_local bool t_counting = false;
+thread_local std::size_t t_count = 0;
+
+void* Allocate(std::size_t n) {
+  if (t_counting) ++t_count;
+  if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
+  throw std::bad_alloc();
+}
+}  // namespace
+
+void* operator new(std::size_t n) { return Allocate(n); }
+void* operator new[](std::size_t n) { return Allocate(n); }
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete[](void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+
+namespace hapticpd::testing {
+CountAllocations::CountAllocations() {
+  t_count = 0;
+  t_counting = true;
+}
+CountAllocations::~CountAllocations() { t_counting = false; }
+std::size_t CountAllocations::count() const { return t_count; }
+}  // namespace hapticpd::testing

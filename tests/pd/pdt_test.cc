@@ -1,0 +1,521 @@
+// PDt: exactness on convex pairs (independent separating-axis computation,
+// cross-checked with Bullet's EPA), FCL verification of every answer on
+// non-convex pairs, quality against a directional-sampling upper bound,
+// metamorphic relations, hard cases, scene combination, no allocation.
+#include "pd/pdt.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <random>
+
+#include "pd/scene_pd.h"
+#include "pd/shapes.h"
+#include "tests/alloc_counter.h"
+#include "tests/oracles/bullet_oracle.h"
+#include "tests/oracles/fcl_oracle.h"
+#include "tests/test_util.h"
+
+namespace hapticpd::pd {
+namespace {
+
+using testing::FclCollide;
+using testing::FclModel;
+
+Quat RandomRotation(std::mt19937_64& rng) {
+  std::normal_distribution<double> n(0, 1);
+  return Quat(n(rng), n(rng), n(rng), n(rng)).normalized();
+}
+
+// Exact PDt of two convex polytopes by brute force over every candidate axis
+// (face normals of both, cross products of every edge pair); written
+// independently of pd/convex.cc (no Gauss-map pruning, supports by scan).
+double BruteForceConvexPdt(const Mesh& a, const Pose& X_WA, const Mesh& b, const Pose& X_WB,
+                           Vec3* dir) {
+  std::vector<Vec3> va, vb, axes;
+  for (const Vec3& v : a.vertices()) va.push_back(X_WA * v);
+  for (const Vec3& v : b.vertices()) vb.push_back(X_WB * v);
+  for (const Vec3& n : a.face_normals()) axes.push_back(X_WA.R * n);
+  for (const Vec3& n : b.face_normals()) axes.push_back(X_WB.R * n);
+  for (const Edge& ea : a.edges()) {
+    const Vec3 da = X_WA.R * (a.vertices()[ea.v[1]] - a.vertices()[ea.v[0]]);
+    for (const Edge& eb : b.edges()) {
+      const Vec3 c = da.cross(X_WB.R * (b.vertices()[eb.v[1]] - b.vertices()[eb.v[0]]));
+      if (c.norm() > 1e-12) axes.push_back(c.normalized());
+    }
+  }
+  double best = std::numeric_limits<double>::infinity();
+  for (const Vec3& axis : axes) {
+    for (double sign : {1.0, -1.0}) {
+      const Vec3 u = sign * axis;
+      double max_b = -std::numeric_limits<double>::infinity();
+      double min_a = std::numeric_limits<double>::infinity();
+      for (const Vec3& p : vb) max_b = std::max(max_b, u.dot(p));
+      for (const Vec3& p : va) min_a = std::min(min_a, u.dot(p));
+      if (max_b - min_a < best) {
+        best = max_b - min_a;
+        *dir = u;
+      }
+    }
+  }
+  return best;
+}
+
+// Independent contact check: pushed out by a tiny fraction the probe is free,
+// pulled in by the same fraction it collides (FCL boolean collide).
+void ExpectRealContact(const FclModel& fa, const FclModel& fb, const Pose& X_WB,
+                       const PenetrationResult& r, double rel = 1e-6) {
+  ASSERT_GT(r.depth, 0);
+  const Vec3 u = r.translation_W / r.depth;
+  const double step = std::max(rel * r.depth, 1e-12);
+  const Pose out{r.X_WA_result.R, r.X_WA_result.t + u * step};
+  const Pose in{r.X_WA_result.R, r.X_WA_result.t - u * step};
+  EXPECT_FALSE(FclCollide(fa, out, fb, X_WB)) << "answer is an over-push: not free when pushed out";
+  EXPECT_TRUE(FclCollide(fa, in, fb, X_WB)) << "answer is not a contact: free when pulled in";
+}
+
+PenetrationRequest ColdRequest() {
+  PenetrationRequest req;
+  req.use_coherence = false;
+  return req;
+}
+
+// --------------------------------------------------------------------------
+// Convex pairs: exact
+
+struct ConvexCase {
+  const char* name;
+  Mesh a, b;
+};
+
+TEST(PdtConvex, EqualsExactSeparatingAxisValueAndBulletEpa) {
+  std::vector<ConvexCase> cases;
+  cases.push_back({"box-box", shapes::Box(Vec3(0.1, 0.2, 0.3)), shapes::Box(Vec3(0.3, 0.2, 0.15))});
+  cases.push_back({"sphere-box", shapes::Sphere(0.15, 1), shapes::Box(Vec3(0.2, 0.2, 0.2))});
+  cases.push_back({"cylinder-sphere", shapes::Cylinder(0.05, 0.2, 12), shapes::Sphere(0.2, 1)});
+  cases.push_back(
+      {"capsule-box", shapes::Capsule(0.05, 0.1, 8, 2), shapes::Box(Vec3(0.3, 0.1, 0.2))});
+  std::mt19937_64 rng(testing::TestSeed());
+  std::normal_distribution<double> n(0, 1);
+  const int count = testing::TestCount(120);
+  for (ConvexCase& c : cases) {
+    SCOPED_TRACE(c.name);
+    const ModelPtr A = MakeModel(std::move(c.a));
+    const ModelPtr B = MakeModel(std::move(c.b));
+    ASSERT_TRUE(A->convex() && B->convex());
+    const testing::BulletHull ha(A->mesh()), hb(B->mesh());
+    const FclModel fa(A->mesh()), fb(B->mesh());
+    PdQueryData data;
+    PenetrationResult r;
+    int penetrating = 0;
+    for (int i = 0; i < count; ++i) {
+      const Pose X_WA =
+          Pose::FromQuaternion(RandomRotation(rng), Vec3(n(rng), n(rng), n(rng)) * 0.15);
+      const Pose X_WB = Pose::FromQuaternion(RandomRotation(rng), Vec3(0.01, -0.02, 0.03));
+      Vec3 dir;
+      const double exact = BruteForceConvexPdt(A->mesh(), X_WA, B->mesh(), X_WB, &dir);
+      ComputePdt(*A, X_WA, *B, X_WB, ColdRequest(), &data, &r);
+      if (exact <= 1e-9) {
+        EXPECT_TRUE(r.status == PdStatus::kSeparated || r.depth <= 1e-9) << exact;
+        continue;
+      }
+      ++penetrating;
+      ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
+      EXPECT_NEAR(r.depth, exact, 1e-6 * exact);
+      const testing::EpaResult epa = BulletPenetration(ha, X_WA, hb, X_WB);
+      EXPECT_NEAR(epa.depth, exact, 1e-6 * exact) << "Bullet EPA disagrees with the SAT value";
+      ExpectRealContact(fa, fb, X_WB, r);
+    }
+    EXPECT_GT(penetrating, count / 4);
+  }
+}
+
+TEST(PdtConvex, IterationAloneConvergesAlongACoherentPress) {
+  // The contact-space iteration (no convex shortcut after the first frame):
+  // a box pressed into a box along a slow trajectory stays exact.
+  const ModelPtr A = MakeModel(shapes::Box(Vec3(0.05, 0.05, 0.05)));
+  const ModelPtr B = MakeModel(shapes::Box(Vec3(0.3, 0.3, 0.1)));
+  PdQueryData data;
+  PenetrationRequest req;
+  PenetrationResult r;
+  int frames = 0;
+  for (int k = 0; k < 400; ++k) {
+    const double s = k / 400.0;
+    const Vec3 t(0.1 * std::sin(3 * s), 0.08 * s, 0.15 - 0.04 * std::sin(M_PI * s));
+    const Pose X_WA{Eigen::AngleAxisd(0.3 * s, Vec3(1, 2, 3).normalized()).toRotationMatrix(), t};
+    ComputePdt(*A, X_WA, *B, Pose::Identity(), req, &data, &r);
+    Vec3 dir;
+    const double exact = BruteForceConvexPdt(A->mesh(), X_WA, B->mesh(), Pose::Identity(), &dir);
+    if (exact <= 1e-9) continue;
+    ++frames;
+    EXPECT_NEAR(r.depth, exact, 1e-6 * exact) << "frame " << k;
+  }
+  EXPECT_GT(frames, 150);
+}
+
+TEST(PdtConvex, SwappingProbeAndSceneNegatesTheVector) {
+  const ModelPtr A = MakeModel(shapes::Box(Vec3(0.1, 0.2, 0.3)));
+  const ModelPtr B = MakeModel(shapes::Sphere(0.2, 1));
+  std::mt19937_64 rng(testing::TestSeed() + 1);
+  std::normal_distribution<double> n(0, 1);
+  PdQueryData d1, d2;
+  PenetrationResult r1, r2;
+  for (int i = 0; i < 50; ++i) {
+    const Pose X_WA = Pose::FromQuaternion(RandomRotation(rng), Vec3(n(rng), n(rng), n(rng)) * 0.1);
+    const Pose X_WB = Pose::FromQuaternion(RandomRotation(rng), Vec3::Zero());
+    ComputePdt(*A, X_WA, *B, X_WB, ColdRequest(), &d1, &r1);
+    ComputePdt(*B, X_WB, *A, X_WA, ColdRequest(), &d2, &r2);
+    if (r1.status == PdStatus::kSeparated) continue;
+    EXPECT_LT((r1.translation_W + r2.translation_W).norm(), 1e-9) << i;
+  }
+}
+
+// --------------------------------------------------------------------------
+// Non-convex pairs: verified contacts and quality
+
+struct NonConvexCase {
+  const char* name;
+  Mesh a, b;
+  double spread;
+};
+
+std::vector<NonConvexCase> NonConvexCases() {
+  std::vector<NonConvexCase> v;
+  v.push_back({"box-torus", shapes::Box(Vec3(0.01, 0.01, 0.04)), shapes::Torus(), 0.005});
+  v.push_back({"stick-torusknot", shapes::Stick(), shapes::TorusKnot(), 0.004});
+  v.push_back({"spoon-cup", shapes::Spoon(), shapes::Cup(), 0.004});
+  v.push_back({"torus-cup", shapes::Torus(0.03, 0.01, 24, 12), shapes::Cup(), 0.004});
+  return v;
+}
+
+Pose NearSurfacePose(const GeometryModel& A, const GeometryModel& B, std::mt19937_64& rng,
+                     double spread) {
+  std::normal_distribution<double> n(0, 1);
+  std::uniform_int_distribution<std::size_t> pick(0, B.mesh().num_vertices() - 1);
+  Pose X = Pose::FromQuaternion(RandomRotation(rng), Vec3::Zero());
+  X.t =
+      B.mesh().vertices()[pick(rng)] + Vec3(n(rng), n(rng), n(rng)) * spread - X.R * A.mass().p_MC;
+  return X;
+}
+
+TEST(PdtNonConvex, EveryAnswerIsAVerifiedContact) {
+  std::mt19937_64 rng(testing::TestSeed());
+  const int count = testing::TestCount(25);
+  for (NonConvexCase& c : NonConvexCases()) {
+    SCOPED_TRACE(c.name);
+    const ModelPtr A = MakeModel(std::move(c.a));
+    const ModelPtr B = MakeModel(std::move(c.b));
+    const FclModel fa(A->mesh()), fb(B->mesh());
+    PdQueryData data;
+    PenetrationResult r;
+    int penetrating = 0;
+    for (int i = 0; i < count; ++i) {
+      const Pose X_WA = NearSurfacePose(*A, *B, rng, c.spread);
+      ComputePdt(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &data, &r);
+      if (r.status == PdStatus::kSeparated) {
+        EXPECT_FALSE(FclCollide(fa, X_WA, fb, Pose::Identity()));
+        continue;
+      }
+      ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
+      ++penetrating;
+      EXPECT_TRUE(r.translation_W.allFinite());
+      EXPECT_GE(r.iterations, 1);
+      EXPECT_FALSE(r.features.empty());
+      ExpectRealContact(fa, fb, Pose::Identity(), r);
+    }
+    EXPECT_GT(penetrating, count / 4);
+  }
+}
+
+TEST(PdtNonConvex, SharedBunnyAnswersAreVerifiedContacts) {
+  HAPTICPD_REQUIRE_MODEL(path, "stanford-bunny.obj");
+  const ModelPtr B = MakeModel(LoadMesh(path.string()));
+  const ModelPtr A = MakeModel(shapes::Stick());
+  const FclModel fa(A->mesh()), fb(B->mesh());
+  std::mt19937_64 rng(testing::TestSeed());
+  PdQueryData data;
+  PenetrationResult r;
+  int penetrating = 0;
+  for (int i = 0; i < testing::TestCount(15); ++i) {
+    const Pose X_WA = NearSurfacePose(*A, *B, rng, 0.003);
+    ComputePdt(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &data, &r);
+    if (r.status == PdStatus::kSeparated) continue;
+    ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
+    ++penetrating;
+    ExpectRealContact(fa, fb, Pose::Identity(), r);
+  }
+  EXPECT_GT(penetrating, 3);
+}
+
+// Upper bound on PDt by directional sampling: for each direction, the
+// smallest free translation found by bisection with FCL collide; refined by
+// sampling around the best direction.
+double DirectionalDepth(const FclModel& fa, const Pose& X, const FclModel& fb, const Vec3& u,
+                        double far) {
+  if (FclCollide(fa, Pose{X.R, X.t + u * far}, fb, Pose::Identity())) return 1e300;
+  double lo = 0, hi = far;
+  for (int i = 0; i < 40; ++i) {
+    const double mid = 0.5 * (lo + hi);
+    (FclCollide(fa, Pose{X.R, X.t + u * mid}, fb, Pose::Identity()) ? lo : hi) = mid;
+  }
+  return hi;
+}
+
+double SampledUpperBound(const FclModel& fa, const Pose& X, const FclModel& fb, double far,
+                         std::mt19937_64& rng, int directions) {
+  std::normal_distribution<double> n(0, 1);
+  double best = 1e300;
+  Vec3 best_u = Vec3::UnitZ();
+  for (int k = 0; k < directions; ++k) {
+    const Vec3 u = Vec3(n(rng), n(rng), n(rng)).normalized();
+    const double d = DirectionalDepth(fa, X, fb, u, far);
+    if (d < best) {
+      best = d;
+      best_u = u;
+    }
+  }
+  for (double spread : {0.2, 0.05, 0.01}) {
+    for (int k = 0; k < directions / 4; ++k) {
+      const Vec3 u = (best_u + spread * Vec3(n(rng), n(rng), n(rng))).normalized();
+      const double d = DirectionalDepth(fa, X, fb, u, far);
+      if (d < best) {
+        best = d;
+        best_u = u;
+      }
+    }
+  }
+  return best;
+}
+
+TEST(PdtNonConvex, MedianWithinOnePercentOfSamplingBoundAlongACoherentTrajectory) {
+  const ModelPtr A = MakeModel(shapes::Box(Vec3(0.008, 0.008, 0.03)));
+  const ModelPtr B = MakeModel(shapes::Torus());
+  const FclModel fa(A->mesh()), fb(B->mesh());
+  std::mt19937_64 rng(testing::TestSeed());
+  PdQueryData data;
+  PenetrationRequest req;  // with motion coherence
+  PenetrationResult r;
+  std::vector<double> ratios;
+  const double far = 2 * (A->mesh().size() + B->mesh().size());
+  // Slide around the torus's outer rim while pressing in and out.
+  const int frames = 240;
+  for (int k = 0; k < frames; ++k) {
+    const double s = static_cast<double>(k) / frames;
+    const double ang = 1.2 * s;
+    const double press = 0.004 + 0.006 * std::sin(M_PI * s);
+    const Vec3 radial(std::cos(ang), std::sin(ang), 0);
+    const Pose X_WA{Eigen::AngleAxisd(0.3, Vec3::UnitZ()).toRotationMatrix() *
+                        Eigen::AngleAxisd(M_PI / 2, Vec3::UnitY()).toRotationMatrix(),
+                    radial * (0.08 + 0.03 - press)};
+    ComputePdt(*A, X_WA, *B, Pose::Identity(), req, &data, &r);
+    if (r.status == PdStatus::kSeparated || k % 8 != 0) continue;
+    ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
+    const double bound = SampledUpperBound(fa, X_WA, fb, far, rng, 120);
+    ratios.push_back(r.depth / bound);
+  }
+  ASSERT_GT(ratios.size(), 10u);
+  std::sort(ratios.begin(), ratios.end());
+  const double median = ratios[ratios.size() / 2];
+  std::cout << "[ PDt/sampled ] n=" << ratios.size() << " min=" << ratios.front()
+            << " median=" << median << " max=" << ratios.back() << "\n";
+  EXPECT_LE(median, 1.01);
+}
+
+// --------------------------------------------------------------------------
+// Metamorphic
+
+TEST(PdtMetamorphic, CommonRigidTransformRotatesTheAnswer) {
+  const ModelPtr A = MakeModel(shapes::Spoon());
+  const ModelPtr B = MakeModel(shapes::Cup());
+  std::mt19937_64 rng(testing::TestSeed() + 7);
+  PdQueryData d1, d2;
+  PenetrationResult r1, r2;
+  int checked = 0;
+  for (int i = 0; i < 12; ++i) {
+    const Pose X_WA = NearSurfacePose(*A, *B, rng, 0.004);
+    const Pose G = Pose::FromQuaternion(RandomRotation(rng), Vec3(0.3, -1.2, 2.0));
+    ComputePdt(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &d1, &r1);
+    ComputePdt(*A, G * X_WA, *B, G, ColdRequest(), &d2, &r2);
+    if (r1.status == PdStatus::kSeparated) {
+      EXPECT_EQ(r2.status, PdStatus::kSeparated);
+      continue;
+    }
+    ++checked;
+    EXPECT_NEAR(r2.depth, r1.depth, 1e-6 * r1.depth + 1e-9);
+    EXPECT_LT((r2.translation_W - G.R * r1.translation_W).norm(), 1e-5 * r1.depth + 1e-9);
+  }
+  EXPECT_GT(checked, 3);
+}
+
+// --------------------------------------------------------------------------
+// Hard cases
+
+void ExpectFiniteVerified(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
+                          const Pose& X_WB, double expected_depth, double tol) {
+  PdQueryData data;
+  PenetrationResult r;
+  ComputePdt(A, X_WA, B, X_WB, ColdRequest(), &data, &r);
+  ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
+  ASSERT_NE(r.status, PdStatus::kSeparated);
+  EXPECT_TRUE(r.translation_W.allFinite());
+  EXPECT_NEAR(r.depth, expected_depth, tol);
+  for (const ContactRegion& reg : r.regions) {
+    EXPECT_TRUE(reg.p_W.allFinite() && reg.n_W.allFinite() && std::isfinite(reg.depth));
+  }
+  const FclModel fa(A.mesh()), fb(B.mesh());
+  ExpectRealContact(fa, fb, X_WB, r);
+}
+
+TEST(PdtHardCases, BoxRestingFlatOnBoxCoplanarFaces) {
+  const ModelPtr box = MakeModel(shapes::Box(Vec3::Ones(), 3));  // many coplanar triangles
+  ExpectFiniteVerified(*box, Pose::FromTranslation(Vec3(0.3, 0.2, 1.99)), *box, Pose::Identity(),
+                       0.01, 1e-9);
+}
+
+TEST(PdtHardCases, ParallelEdgesCrossing) {
+  const ModelPtr box = MakeModel(shapes::Box(Vec3(1, 1, 1)));
+  // A rotated 45 degrees about x: its bottom edge is parallel to B's top edges.
+  const Pose X_WA{Eigen::AngleAxisd(M_PI / 4, Vec3::UnitX()).toRotationMatrix(),
+                  Vec3(0.5, 0, 1 + std::sqrt(2.0) - 0.05)};
+  ExpectFiniteVerified(*box, X_WA, *box, Pose::Identity(), 0.05, 1e-9);
+}
+
+TEST(PdtHardCases, VertexExactlyOnAFace) {
+  const ModelPtr box = MakeModel(shapes::Box(Vec3(1, 1, 1)));
+  const ModelPtr tet = MakeModel(shapes::Sphere(0.5, 0));
+  // Push the icosahedron's lowest vertex exactly onto the face, then 0.02 in.
+  Vec3 low = tet->mesh().vertices()[0];
+  for (const Vec3& v : tet->mesh().vertices()) low = v.z() < low.z() ? v : low;
+  ExpectFiniteVerified(*tet, Pose::FromTranslation(Vec3(0.1, 0.1, 1 - low.z() - 0.02)), *box,
+                       Pose::Identity(), 0.02, 1e-9);
+}
+
+TEST(PdtHardCases, SliverTriangles) {
+  // A thin fan: slivers of 1e-5 aspect ratio in the scene.
+  std::vector<Vec3> v = {Vec3(0, 0, 0)};
+  std::vector<Triangle> t;
+  const int n = 400;
+  for (int i = 0; i <= n; ++i) v.emplace_back(1.0, -0.5 + static_cast<double>(i) / n, 0);
+  for (int i = 1; i <= n; ++i) t.push_back({0, i, i + 1});
+  const ModelPtr fan = MakeModel(Mesh::FromArrays(v, t, "fan"));
+  const ModelPtr box = MakeModel(shapes::Box(Vec3(0.05, 0.05, 0.05)));
+  PdQueryData data;
+  PenetrationResult r;
+  ComputePdt(*box, Pose::FromTranslation(Vec3(0.5, 0.01, 0.04)), *fan, Pose::Identity(),
+             ColdRequest(), &data, &r);
+  ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
+  EXPECT_TRUE(r.translation_W.allFinite());
+  // An open sheet: the box leaves through the nearer side (0.01 up).
+  EXPECT_NEAR(r.depth, 0.01, 1e-9);
+}
+
+TEST(PdtHardCases, ProbeFullyInsideAClosedBody) {
+  const ModelPtr big = MakeModel(shapes::Box(Vec3(1, 1, 1)));
+  const ModelPtr small = MakeModel(shapes::Box(Vec3(0.1, 0.1, 0.1)));
+  // Nearest way out: +x, 1 - 0.7 + 0.1 = 0.4.
+  ExpectFiniteVerified(*small, Pose::FromTranslation(Vec3(0.7, 0.1, -0.2)), *big, Pose::Identity(),
+                       0.4, 1e-9);
+  // Also for a non-convex body: inside the cup's wall is too thin, use a torus
+  // with a sphere inside its tube.
+  const ModelPtr torus = MakeModel(shapes::Torus(0.06, 0.02, 64, 32));
+  const ModelPtr ball = MakeModel(shapes::Sphere(0.004, 1));
+  PdQueryData data;
+  PenetrationResult r;
+  ComputePdt(*ball, Pose::FromTranslation(Vec3(0.06, 0, 0)), *torus, Pose::Identity(),
+             ColdRequest(), &data, &r);
+  EXPECT_NE(r.status, PdStatus::kSeparated) << "containment must count as penetration";
+  EXPECT_NEAR(r.depth, 0.02 + 0.004, 1.5e-3);  // tessellation of tube and ball
+}
+
+TEST(PdtHardCases, ScalesFromMillimetresToKilometres) {
+  for (double scale : {1e-3, 1.0, 1e3}) {
+    SCOPED_TRACE(scale);
+    const ModelPtr A = MakeModel(shapes::Box(Vec3(1, 1, 1) * scale));
+    const ModelPtr B = MakeModel(shapes::Box(Vec3(2, 2, 1) * scale));
+    ExpectFiniteVerified(*A, Pose::FromTranslation(Vec3(0.3, 0.2, 1.9) * scale), *B,
+                         Pose::Identity(), 0.1 * scale, 1e-9 * scale);
+  }
+}
+
+TEST(PdtHardCases, ProbeMuchSmallerAndMuchLargerThanTheScene) {
+  const ModelPtr tiny = MakeModel(shapes::Box(Vec3(1, 1, 1) * 1e-3));
+  const ModelPtr huge = MakeModel(shapes::Box(Vec3(1, 1, 1)));
+  // The tiny box's bottom face 0.5 mm below the huge box's top face.
+  ExpectFiniteVerified(*tiny, Pose::FromTranslation(Vec3(0.2, 0.3, 1.0005)), *huge,
+                       Pose::Identity(), 0.0005, 1e-12);
+  ExpectFiniteVerified(*huge, Pose::FromTranslation(Vec3(0.2, 0.3, -1.0005)), *tiny,
+                       Pose::Identity(), 0.0005, 1e-12);
+}
+
+// --------------------------------------------------------------------------
+// Force, regions, scenes, allocation
+
+TEST(PdtForce, RegionsGiveForceAlongNormalsAndTorqueAboutCentreOfMass) {
+  const ModelPtr A = MakeModel(shapes::Box(Vec3(0.5, 0.1, 0.1)));
+  const ModelPtr B = MakeModel(shapes::Box(Vec3(2, 2, 1)));
+  PdQueryData data;
+  PenetrationResult r;
+  // Tilted bar: only its +x end dips 0.02 below B's top face.
+  const double tilt = 0.05;
+  const Pose X_WA{Eigen::AngleAxisd(tilt, Vec3::UnitY()).toRotationMatrix(),
+                  Vec3(0, 0, 1.0 + 0.5 * std::sin(tilt) + 0.1 * std::cos(tilt) - 0.02)};
+  ComputePdt(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &data, &r);
+  ASSERT_EQ(r.status, PdStatus::kPenetratingSolved);
+  ASSERT_FALSE(r.regions.empty());
+  Material m;
+  m.stiffness = 500;
+  const Wrench w = PenaltyWrench(r, m, X_WA * A->mass().p_MC);
+  EXPECT_GT(w.force.z(), 0);
+  EXPECT_NEAR(w.force.z(), 500 * r.depth, 1e-6);
+  // Pushed up at its +x end: positive torque would lift +x, i.e. about -y.
+  EXPECT_LT(w.torque.y(), 0);
+}
+
+TEST(ScenePd, SkipsFarBodiesAndSumsWrenches) {
+  const ModelPtr probe = MakeModel(shapes::Box(Vec3(0.1, 0.1, 0.1)));
+  const ModelPtr slab = MakeModel(shapes::Box(Vec3(1, 1, 0.1)));
+  std::vector<SceneBody> bodies = {
+      {slab, Pose::FromTranslation(Vec3(0, 0, -0.1)), Material{}},      // floor, 0.01 deep
+      {slab, Pose::FromTranslation(Vec3(0, 0, 5)), Material{}},         // far away
+      {probe, Pose::FromTranslation(Vec3(0.19, 0, 0.09)), Material{}},  // side, 0.01 deep
+  };
+  ScenePdData data;
+  ScenePdResult r;
+  ComputeScenePdt(*probe, Pose::FromTranslation(Vec3(0, 0, 0.09)), bodies, ColdRequest(), &data,
+                  &r);
+  ASSERT_EQ(r.bodies.size(), 3u);
+  EXPECT_TRUE(r.tested[0]);
+  EXPECT_FALSE(r.tested[1]);
+  EXPECT_TRUE(r.tested[2]);
+  EXPECT_NEAR(r.bodies[0].depth, 0.01, 1e-9);
+  EXPECT_NEAR(r.bodies[2].depth, 0.01, 1e-9);
+  EXPECT_TRUE(r.colliding);
+  const double k = Material{}.stiffness;
+  EXPECT_NEAR(r.wrench.force.z(), k * 0.01, 1e-6);
+  EXPECT_NEAR(r.wrench.force.x(), -k * 0.01, 1e-6);
+}
+
+TEST(PdtAllocation, NoHeapAllocationAfterWarmUp) {
+  const ModelPtr A = MakeModel(shapes::Spoon());
+  const ModelPtr B = MakeModel(shapes::Cup());
+  PdQueryData data;
+  PenetrationRequest req;
+  PenetrationResult r;
+  std::vector<Pose> poses;
+  std::mt19937_64 rng(testing::TestSeed());
+  const Pose X0 = NearSurfacePose(*A, *B, rng, 0.0);
+  for (int k = 0; k < 60; ++k) {
+    poses.push_back(Pose{X0.R, X0.t + Vec3(0, 0, -0.0001 * k)});
+  }
+  for (const Pose& X : poses) ComputePdt(*A, X, *B, Pose::Identity(), req, &data, &r);  // warm up
+  std::size_t allocations = 0;
+  {
+    testing::CountAllocations counter;
+    for (const Pose& X : poses) ComputePdt(*A, X, *B, Pose::Identity(), req, &data, &r);
+    allocations = counter.count();
+  }
+  EXPECT_EQ(allocations, 0u);
+}
+
+}  // namespace
+}  // namespace hapticpd::pd
