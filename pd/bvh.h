@@ -71,6 +71,14 @@ struct BoxFrame {
 bool BoxesOverlap(const BoxFrame& f, const BvhNode& a, const BvhNode& b, double margin,
                   const Vec3& sweep_B);
 
+/// Time interval of overlap of box a, moving by t * sweep_B for t in
+/// [0, t_max], with box b, from the same 15 axes (a conservative superset of
+/// the true interval). Returns false when no axis admits overlap in
+/// [0, t_max]; otherwise *t_enter is a lower bound on the first contact time
+/// of anything inside the boxes.
+bool BoxesSweptEnter(const BoxFrame& f, const BvhNode& a, const BvhNode& b, const Vec3& sweep_B,
+                     double t_max, double* t_enter);
+
 /// A lower bound on the distance between box a and box b, from the 6 face
 /// axes (0 when they may overlap).
 double BoxesDistanceLowerBound(const BoxFrame& f, const BvhNode& a, const BvhNode& b);

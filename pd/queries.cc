@@ -123,6 +123,62 @@ void TraversePairs(const Bvh& ba, const Bvh& bb, QueryScratch* scratch, OverlapF
   }
 }
 
+// Best-first pair traversal: node pairs are expanded in increasing `key` (a
+// lower bound such as the earliest possible contact time) from a binary heap,
+// and skipped once their key exceeds `*cutoff`, which the leaf callback may
+// lower. With loose boxes (sliver triangles, long sweeps) a depth-first order
+// can spend most of a query on pairs behind the first contact; best-first
+// stops as soon as nothing earlier remains.
+template <typename OverlapFn, typename KeyFn, typename LeafFn>
+void TraversePairsBestFirst(const Bvh& ba, const Bvh& bb, QueryScratch* scratch,
+                            OverlapFn&& overlap, KeyFn&& key, const double* cutoff,
+                            LeafFn&& leaf) {
+  auto& heap = scratch->heap;
+  heap.clear();
+  const auto& NA = ba.nodes();
+  const auto& NB = bb.nodes();
+  const auto& PA = ba.primitives();
+  const auto& PB = bb.primitives();
+  auto later = [](const QueryScratch::KeyedPair& x, const QueryScratch::KeyedPair& y) {
+    return x.key > y.key;
+  };
+  auto push = [&](Index ia, Index ib) {
+    const double k = key(NA[ia], NB[ib]);
+    if (k > *cutoff) return;
+    heap.push_back({k, ia, ib});
+    std::push_heap(heap.begin(), heap.end(), later);
+  };
+  push(0, 0);
+  while (!heap.empty()) {
+    std::pop_heap(heap.begin(), heap.end(), later);
+    const QueryScratch::KeyedPair top = heap.back();
+    heap.pop_back();
+    if (top.key > *cutoff) break;  // everything left starts later
+    const BvhNode& na = NA[top.a];
+    const BvhNode& nb = NB[top.b];
+    if (!overlap(na, nb)) continue;
+    if (na.leaf() && nb.leaf()) {
+      for (Index i = 0; i < na.count; ++i) {
+        for (Index j = 0; j < nb.count; ++j) {
+          if (!leaf(PA[na.first + i], PB[nb.first + j])) {
+            heap.clear();
+            return;
+          }
+        }
+      }
+      continue;
+    }
+    if (SplitA(na, nb)) {
+      push(na.first, top.b);
+      push(na.first + 1, top.b);
+    } else {
+      push(top.a, nb.first);
+      push(top.a, nb.first + 1);
+    }
+  }
+  heap.clear();
+}
+
 // Oriented normal of an edge-edge pair from the edges' cross product, or
 // false when the edges are parallel.
 bool EdgeEdgeNormal(const GeometryModel& A, const Mat3& R_BA, Index ea, const GeometryModel& B,
@@ -529,11 +585,18 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   const Mesh& mb = B.mesh();
   double t_best = 1;
   bool hit = false;
-  TraversePairs(
-      A.bvh(), B.bvh(), scratch,
-      [&](const BvhNode& na, const BvhNode& nb) {
-        return internal::BoxesOverlap(frame, na, nb, 0.0, t_best * d_B);
-      },
+  // Earliest time a node pair can touch (swept separating-axis interval),
+  // infinity when it cannot within [0, t_best]: the best-first traversal
+  // finds the first contact early and prunes everything behind it.
+  auto earliest = [&](const BvhNode& na, const BvhNode& nb) {
+    double t;
+    return internal::BoxesSweptEnter(frame, na, nb, d_B, t_best, &t)
+               ? t
+               : std::numeric_limits<double>::infinity();
+  };
+  TraversePairsBestFirst(
+      A.bvh(), B.bvh(), scratch, [](const BvhNode&, const BvhNode&) { return true; }, earliest,
+      &t_best,
       [&](Index fa, Index fb) {
         const TriB ta = TriangleOfA(ma, X_BA, fa);
         const TriB tb = TriangleOfB(mb, fb);

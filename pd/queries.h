@@ -25,6 +25,11 @@ namespace hapticpd::pd {
 /// split). Never shared between threads.
 struct QueryScratch {
   std::vector<std::pair<Index, Index>> stack;
+  struct KeyedPair {
+    double key;
+    Index a, b;
+  };
+  std::vector<KeyedPair> heap;  ///< best-first traversals (CCD)
 };
 
 struct TrianglePair {
