@@ -35,7 +35,7 @@ struct BvhNode {
 class Bvh {
  public:
   /// Largest number of triangles per leaf.
-  static constexpr int kMaxLeafSize = 2;
+  static constexpr int kMaxLeafSize = 4;
 
   explicit Bvh(const Mesh& mesh);
 
