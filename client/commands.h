@@ -8,6 +8,7 @@ namespace hapticpd::cli {
 
 void RegisterVersion(CLI::App& app);
 void RegisterMeshInfo(CLI::App& app);
+void RegisterPd(CLI::App& app);
 
 /// Thrown by a command to exit non-zero with a one-line reason on stderr.
 struct CommandError : std::runtime_error {

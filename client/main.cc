@@ -10,8 +10,13 @@ int main(int argc, char** argv) {
   CLI::App app{"hapticpd: networked 6-DoF haptic rendering with penetration depth", "hapticpd"};
   app.require_subcommand(1);
   app.set_help_all_flag("--help-all", "Show help for every subcommand");
+  // Command-line errors too get one line on stderr, like every other bad input.
+  app.failure_message([](const CLI::App*, const CLI::Error& e) {
+    return std::string("hapticpd: ") + e.what() + " (run with --help for usage)\n";
+  });
   hapticpd::cli::RegisterVersion(app);
   hapticpd::cli::RegisterMeshInfo(app);
+  hapticpd::cli::RegisterPd(app);
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
   try {
     app.parse(argc, argv);

@@ -1,0 +1,337 @@
+// `hapticpd pd --probe A --scene B [--scene C ...] --pose "..."`: penetration
+// depth of a probe against one or more scene bodies, one PD query per body,
+// and the combined penalty wrench on the probe.
+#include <nlohmann/json.hpp>
+
+#include <array>
+#include <cerrno>
+#include <cmath>
+#include <cstdlib>
+#include <iomanip>
+#include <iostream>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "client/commands.h"
+#include "pd/geometry_model.h"
+#include "pd/material.h"
+#include "pd/mesh.h"
+#include "pd/pdt.h"
+#include "pd/penetration.h"
+#include "pd/shapes.h"
+
+namespace hapticpd::cli {
+namespace {
+
+constexpr char kShapePrefix[] = "shape:";
+constexpr double kUnitQuaternionTolerance = 1e-6;
+
+struct PdOptions {
+  std::string probe;
+  std::vector<std::string> scenes;
+  std::string pose;
+  std::vector<std::string> scene_poses;
+  std::string mode = "pdt";
+  bool json = false;
+  // Numbers are parsed here rather than by CLI11 so that every bad value gets
+  // the same one-line error.
+  std::string stiffness = "1000";
+  std::string epsilon;
+  std::string max_iterations;
+};
+
+std::string Fmt(double x) {
+  std::ostringstream os;
+  os << std::setprecision(9) << x;
+  return os.str();
+}
+
+/// Parses a whole token as a double (strtod syntax, which also accepts
+/// nan/inf: the caller checks finiteness so it can say which value it was).
+bool ParseDouble(const std::string& token, double* x) {
+  if (token.empty()) return false;
+  char* end = nullptr;
+  errno = 0;
+  *x = std::strtod(token.c_str(), &end);
+  return end == token.c_str() + token.size();
+}
+
+double ParsePositive(const std::string& option, const std::string& text) {
+  double x = 0;
+  if (!ParseDouble(text, &x)) throw CommandError(option + ": '" + text + "' is not a number");
+  if (!std::isfinite(x) || x <= 0) {
+    throw CommandError(option + ": must be a positive finite number, got " + text);
+  }
+  return x;
+}
+
+int ParsePositiveInt(const std::string& option, const std::string& text) {
+  char* end = nullptr;
+  errno = 0;
+  const long v = std::strtol(text.c_str(), &end, 10);
+  if (text.empty() || end != text.c_str() + text.size() || errno == ERANGE || v <= 0 ||
+      v > 1'000'000) {
+    throw CommandError(option + ": must be a positive integer (at most 1000000), got '" + text +
+                       "'");
+  }
+  return static_cast<int>(v);
+}
+
+/// "tx ty tz qw qx qy qz" (whitespace or commas between numbers): a world
+/// pose, translation in metres and a unit quaternion. A quaternion off unit
+/// length by more than 1e-6 is an error rather than silently normalised: it
+/// usually means the numbers are in the wrong order.
+Pose ParsePose(const std::string& option, const std::string& text) {
+  static constexpr const char* kNames[7] = {"tx", "ty", "tz", "qw", "qx", "qy", "qz"};
+  std::string spaced = text;
+  for (char& ch : spaced) {
+    if (ch == ',') ch = ' ';
+  }
+  std::istringstream is(spaced);
+  std::vector<double> v;
+  std::string token;
+  while (is >> token) {
+    double x = 0;
+    if (!ParseDouble(token, &x)) {
+      throw CommandError(option + ": '" + token +
+                         "' is not a number (expected \"tx ty tz qw qx qy qz\")");
+    }
+    v.push_back(x);
+  }
+  if (v.size() != 7) {
+    throw CommandError(option + ": expected 7 numbers \"tx ty tz qw qx qy qz\", got " +
+                       std::to_string(v.size()));
+  }
+  for (int i = 0; i < 7; ++i) {
+    if (!std::isfinite(v[i])) {
+      throw CommandError(option + ": " + kNames[i] + " is " + Fmt(v[i]) +
+                         ", expected a finite number");
+    }
+  }
+  const Quat q(v[3], v[4], v[5], v[6]);
+  const double norm = q.norm();
+  if (!(std::abs(norm - 1) <= kUnitQuaternionTolerance)) {
+    throw CommandError(option + ": quaternion (w x y z) has norm " + Fmt(norm) + ", expected 1");
+  }
+  return Pose::FromQuaternion(q, Vec3(v[0], v[1], v[2]));
+}
+
+/// A mesh file (OBJ/OFF/STL/PLY) or a built-in shape `shape:SPEC`.
+pd::Mesh LoadSource(const std::string& source) {
+  if (source.rfind(kShapePrefix, 0) == 0) {
+    return pd::shapes::MakeShape(source.substr(sizeof(kShapePrefix) - 1));
+  }
+  return pd::LoadMesh(source);
+}
+
+nlohmann::json Vec(const Vec3& v) { return {v.x(), v.y(), v.z()}; }
+
+/// [tx, ty, tz, qw, qx, qy, qz], the quaternion in the hemisphere of `q_ref`
+/// so that an unrotated answer echoes the input quaternion.
+std::array<double, 7> PoseArray(const Pose& X, const Quat& q_ref) {
+  Quat q(X.R);
+  if (q.coeffs().dot(q_ref.coeffs()) < 0) q.coeffs() = -q.coeffs();
+  return {X.t.x(), X.t.y(), X.t.z(), q.w(), q.x(), q.y(), q.z()};
+}
+
+std::string Str(const Vec3& v) {
+  std::ostringstream os;
+  os << std::setprecision(6) << "(" << v.x() << ", " << v.y() << ", " << v.z() << ")";
+  return os.str();
+}
+
+void RunPd(const PdOptions& o) {
+  // Cheap checks first, so a typo does not wait for a large mesh to load.
+  if (o.mode == "pdg") throw CommandError("pd: mode pdg is not implemented yet");
+  if (o.mode != "pdt") {
+    throw CommandError("pd: unknown mode '" + o.mode + "' (valid modes: pdt; pdg is planned)");
+  }
+  if (o.probe.empty()) throw CommandError("pd: --probe FILE|shape:SPEC is required");
+  if (o.scenes.empty()) throw CommandError("pd: at least one --scene FILE|shape:SPEC is required");
+  if (o.pose.empty()) throw CommandError("pd: --pose \"tx ty tz qw qx qy qz\" is required");
+  if (o.scene_poses.size() > o.scenes.size()) {
+    throw CommandError("pd: " + std::to_string(o.scene_poses.size()) + " --scene-pose given for " +
+                       std::to_string(o.scenes.size()) + " --scene");
+  }
+  pd::Material material;
+  material.stiffness = ParsePositive("--stiffness", o.stiffness);
+  pd::PenetrationRequest request;
+  if (!o.epsilon.empty()) request.contact_epsilon = ParsePositive("--epsilon", o.epsilon);
+  if (!o.max_iterations.empty()) {
+    request.max_iterations = ParsePositiveInt("--max-iterations", o.max_iterations);
+  }
+  const Pose X_WA = ParsePose("--pose", o.pose);
+  const Quat q_WA(X_WA.R);
+  std::vector<Pose> X_WB(o.scenes.size(), Pose::Identity());
+  for (std::size_t i = 0; i < o.scene_poses.size(); ++i) {
+    X_WB[i] = ParsePose("--scene-pose " + std::to_string(i), o.scene_poses[i]);
+  }
+
+  const pd::ModelPtr probe = pd::MakeModel(LoadSource(o.probe));
+  std::vector<pd::ModelPtr> bodies;
+  for (const auto& s : o.scenes) bodies.push_back(pd::MakeModel(LoadSource(s)));
+
+  // One query per body, each with its own session data (no coherence to
+  // carry in a one-shot command, but it is the same call the servo loop makes).
+  const Vec3 p_WAcm = X_WA * probe->mass().p_MC;
+  std::vector<pd::PenetrationResult> results(bodies.size());
+  Wrench wrench;
+  int deepest = -1;
+  bool colliding = false;
+  int iterations = 0;
+  std::size_t contacts = 0;
+  double time_us = 0;
+  for (std::size_t i = 0; i < bodies.size(); ++i) {
+    pd::PdQueryData data;
+    pd::ComputePdt(*probe, X_WA, *bodies[i], X_WB[i], request, &data, &results[i]);
+    const pd::PenetrationResult& r = results[i];
+    const Wrench w = pd::PenaltyWrench(r, material, p_WAcm);
+    wrench.force += w.force;
+    wrench.torque += w.torque;
+    iterations += r.iterations;
+    contacts += r.features.size();
+    time_us += r.time_us;
+    if (r.status == pd::PdStatus::kSeparated) continue;
+    colliding = true;
+    if (deepest < 0 || r.depth > results[deepest].depth) deepest = static_cast<int>(i);
+  }
+
+  const pd::PenetrationResult* top = deepest >= 0 ? &results[deepest] : nullptr;
+  const Vec3 translation = top ? top->translation_W : Vec3::Zero();
+  const Pose X_WA_result = top ? top->X_WA_result : X_WA;
+
+  nlohmann::json j;
+  j["colliding"] = colliding;
+  j["mode"] = "pdt";
+  j["status"] = top ? pd::ToString(top->status) : "separated";
+  j["deepest_body"] = deepest >= 0 ? nlohmann::json(deepest) : nlohmann::json(nullptr);
+  j["depth"] = top ? top->depth : 0.0;
+  j["translation"] = Vec(translation);
+  j["pose"] = PoseArray(X_WA, q_WA);
+  j["result_pose"] = PoseArray(X_WA_result, q_WA);
+  j["iterations"] = iterations;
+  j["contacts"] = contacts;
+  j["regions"] = nlohmann::json::array();
+  j["force"] = Vec(wrench.force);
+  j["torque"] = Vec(wrench.torque);
+  j["torque_about"] = Vec(p_WAcm);
+  j["stiffness"] = material.stiffness;
+  j["time_us"] = time_us;
+  j["probe"] = {{"source", o.probe}, {"triangles", probe->mesh().num_triangles()}};
+  j["bodies"] = nlohmann::json::array();
+  for (std::size_t i = 0; i < bodies.size(); ++i) {
+    const pd::PenetrationResult& r = results[i];
+    for (const pd::ContactRegion& reg : r.regions) {
+      j["regions"].push_back(
+          {{"point", Vec(reg.p_W)}, {"normal", Vec(reg.n_W)}, {"depth", reg.depth}, {"body", i}});
+    }
+    nlohmann::json b = {{"body", i},
+                        {"source", o.scenes[i]},
+                        {"triangles", bodies[i]->mesh().num_triangles()},
+                        {"scene_pose", PoseArray(X_WB[i], Quat(X_WB[i].R))},
+                        {"status", pd::ToString(r.status)},
+                        {"depth", r.depth},
+                        {"translation", Vec(r.translation_W)},
+                        {"result_pose", PoseArray(r.X_WA_result, q_WA)},
+                        {"iterations", r.iterations},
+                        {"contacts", r.features.size()},
+                        {"regions", r.regions.size()},
+                        {"time_us", r.time_us}};
+    if (r.status == pd::PdStatus::kFailed) b["failure"] = r.failure;
+    j["bodies"].push_back(std::move(b));
+  }
+  if (o.json) {
+    std::cout << j.dump(2) << "\n";
+    return;
+  }
+
+  const auto& rp = j["result_pose"];
+  std::cout << std::setprecision(6);
+  std::cout << "probe        " << o.probe << " (" << probe->mesh().num_triangles()
+            << " triangles)\n"
+            << "mode         pdt\n"
+            << "colliding    " << (colliding ? "yes" : "no") << "\n"
+            << "status       " << j["status"].get<std::string>();
+  if (deepest >= 0) std::cout << " (deepest: body " << deepest << ")";
+  std::cout << "\n"
+            << "depth        " << j["depth"].get<double>() << " m\n"
+            << "translation  " << Str(translation) << " m\n"
+            << "result pose  t (" << rp[0].get<double>() << ", " << rp[1].get<double>() << ", "
+            << rp[2].get<double>() << ")  q (" << rp[3].get<double>() << ", " << rp[4].get<double>()
+            << ", " << rp[5].get<double>() << ", " << rp[6].get<double>() << ")\n"
+            << "force        " << Str(wrench.force) << " N  (k = " << material.stiffness
+            << " N/m)\n"
+            << "torque       " << Str(wrench.torque) << " N m about the probe's centre of mass "
+            << Str(p_WAcm) << "\n"
+            << "iterations   " << iterations << ", contacts " << contacts << ", regions "
+            << j["regions"].size() << "\n"
+            << "PD time      " << time_us << " us\n";
+  for (std::size_t i = 0; i < bodies.size(); ++i) {
+    const pd::PenetrationResult& r = results[i];
+    std::cout << "body " << i << "       " << o.scenes[i] << " ("
+              << bodies[i]->mesh().num_triangles() << " triangles): " << pd::ToString(r.status)
+              << ", depth " << r.depth << " m along " << Str(r.translation_W) << ", "
+              << r.iterations << " iterations, " << r.features.size() << " contacts, " << r.time_us
+              << " us";
+    if (r.status == pd::PdStatus::kFailed) std::cout << ", failure: " << r.failure;
+    std::cout << "\n";
+    for (const pd::ContactRegion& reg : r.regions) {
+      std::cout << "  region     at " << Str(reg.p_W) << " normal " << Str(reg.n_W) << " depth "
+                << reg.depth << " m\n";
+    }
+  }
+}
+
+}  // namespace
+
+void RegisterPd(CLI::App& app) {
+  auto opts = std::make_shared<PdOptions>();
+  auto* cmd = app.add_subcommand(
+      "pd", "Penetration depth of a probe mesh against scene meshes, with the penalty wrench");
+  cmd->add_option("--probe", opts->probe,
+                  "Probe: a mesh file (.obj, .off, .stl, .ply) or a built-in shape "
+                  "'shape:SPEC', e.g. shape:stick or shape:box:0.1,0.1,0.1")
+      ->type_name("FILE|shape:SPEC");
+  cmd->add_option("--scene", opts->scenes,
+                  "Scene body (repeatable): a mesh file or 'shape:SPEC'; placed at the identity "
+                  "unless --scene-pose is given")
+      ->type_name("FILE|shape:SPEC")
+      ->allow_extra_args(false);
+  cmd->add_option("--pose", opts->pose,
+                  "World pose of the probe's mesh (file) frame: \"tx ty tz qw qx qy qz\", metres "
+                  "and a unit quaternion (norm within 1e-6 of 1; not normalised for you)")
+      ->type_name("\"tx ty tz qw qx qy qz\"");
+  cmd->add_option("--scene-pose", opts->scene_poses,
+                  "World pose of a scene body, one per --scene in order (repeatable); bodies "
+                  "without one sit at the identity")
+      ->type_name("\"tx ty tz qw qx qy qz\"")
+      ->allow_extra_args(false);
+  cmd->add_option("--mode", opts->mode,
+                  "PD method: pdt (translational PD, PolyDepth); pdg is not implemented yet")
+      ->type_name("MODE")
+      ->capture_default_str();
+  cmd->add_flag("--json", opts->json, "Print one JSON object");
+  cmd->add_option("--stiffness", opts->stiffness, "Penalty stiffness k for the wrench (N/m)")
+      ->type_name("K")
+      ->capture_default_str();
+  cmd->add_option("--epsilon", opts->epsilon,
+                  "Contact tolerance as a fraction of the smaller body's size (default 1e-4)")
+      ->type_name("E");
+  cmd->add_option("--max-iterations", opts->max_iterations,
+                  "Cap on projection iterations per body (default 12)")
+      ->type_name("N");
+  cmd->footer(
+      "Each scene body gets its own PD query. The top-level depth, translation (world frame) "
+      "and result_pose (the probe's file-frame pose at the answer: pose translated by "
+      "translation) are those of the DEEPEST body (largest depth); per-body answers are listed "
+      "under bodies. status is that body's status, or 'separated' if no body touches the "
+      "probe; colliding is true if any body is not separated. force and torque are the sum of "
+      "the penalty wrenches of all bodies (f = sum k d_i over contact regions, torque about the "
+      "probe's centre of mass at --pose, world frame); iterations, contacts and time_us are "
+      "sums over bodies.\n");
+  cmd->callback([opts] { RunPd(*opts); });
+}
+
+}  // namespace hapticpd::cli

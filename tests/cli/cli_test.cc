@@ -1,0 +1,313 @@
+// End-to-end tests of the `hapticpd` executable: runs the built binary
+// (HAPTICPD_CLI_PATH) through the shell and checks exit codes, stdout (JSON
+// where asked) and the one-line error on stderr.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+#include "tests/test_util.h"
+
+namespace hapticpd::testing {
+namespace {
+
+struct RunResult {
+  int exit_code = -1;
+  std::string out;
+  std::string err;
+};
+
+/// Runs `hapticpd ARGS` (ARGS is shell text, quote as in a terminal).
+RunResult RunCli(const std::string& args) {
+  static std::atomic<int> counter{0};
+  const std::filesystem::path err_path =
+      std::filesystem::temp_directory_path() / ("hapticpd_cli_test_" + std::to_string(::getpid()) +
+                                                "_" + std::to_string(counter++) + ".err");
+  const std::string cmd =
+      std::string("'") + HAPTICPD_CLI_PATH + "' " + args + " 2>'" + err_path.string() + "'";
+  RunResult r;
+  FILE* pipe = ::popen(cmd.c_str(), "r");
+  if (pipe == nullptr) {
+    ADD_FAILURE() << "popen failed for: " << cmd;
+    return r;
+  }
+  char buf[4096];
+  std::size_t n = 0;
+  while ((n = std::fread(buf, 1, sizeof(buf), pipe)) > 0) r.out.append(buf, n);
+  const int status = ::pclose(pipe);
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream err(err_path);
+  std::ostringstream ss;
+  ss << err.rdbuf();
+  r.err = ss.str();
+  std::filesystem::remove(err_path);
+  return r;
+}
+
+nlohmann::json Json(const RunResult& r) {
+  try {
+    return nlohmann::json::parse(r.out);
+  } catch (const std::exception& e) {
+    ADD_FAILURE() << "stdout is not JSON (" << e.what() << "):\n" << r.out;
+    return {};
+  }
+}
+
+/// Bad input: non-zero exit, nothing on stdout, exactly one line on stderr
+/// that contains `what`.
+void ExpectOneLineError(const std::string& args, const std::string& what) {
+  SCOPED_TRACE("hapticpd " + args);
+  const RunResult r = RunCli(args);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_EQ(r.out, "");
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "stderr: " << r.err;
+  EXPECT_FALSE(r.err.empty() || r.err.back() != '\n') << "stderr: " << r.err;
+  EXPECT_NE(r.err.find(what), std::string::npos) << "stderr: " << r.err;
+  EXPECT_EQ(r.err.rfind("hapticpd: ", 0), 0u) << "stderr: " << r.err;
+}
+
+// Two boxes with unit half extents; the probe at x = 1.5 overlaps the scene
+// box by 0.5 along x, and 1.5 along y and z: PDt = 0.5 along +x.
+constexpr char kBoxes[] = "pd --probe shape:box:1,1,1 --scene shape:box:1,1,1";
+constexpr double kTol = 1e-9;
+
+TEST(CliTest, Version) {
+  const RunResult r = RunCli("version");
+  EXPECT_EQ(r.exit_code, 0);
+  EXPECT_EQ(r.out.rfind("hapticpd ", 0), 0u) << r.out;
+  EXPECT_EQ(r.err, "");
+}
+
+TEST(CliTest, MeshInfoHelp) {
+  const RunResult r = RunCli("mesh-info --help");
+  EXPECT_EQ(r.exit_code, 0);
+  EXPECT_NE(r.out.find("--shape"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("--json"), std::string::npos) << r.out;
+}
+
+TEST(CliTest, MeshInfoJson) {
+  const RunResult r = RunCli("mesh-info --shape box:0.1,0.2,0.3 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = Json(r);
+  EXPECT_EQ(j.value("triangles", 0), 12);
+  EXPECT_EQ(j.value("vertices", 0), 8);
+  EXPECT_TRUE(j.value("watertight", false));
+  EXPECT_NEAR(j.value("volume", 0.0), 0.2 * 0.4 * 0.6, 1e-12);
+}
+
+TEST(CliTest, MeshInfoFile) {
+  const RunResult r =
+      RunCli(std::string("mesh-info '") + HAPTICPD_TESTDATA_DIR + "/good/tetra.obj' --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(Json(r).value("triangles", 0), 4);
+}
+
+TEST(CliTest, PdHelpDocumentsDeepestBody) {
+  const RunResult r = RunCli("pd --help");
+  EXPECT_EQ(r.exit_code, 0);
+  for (const char* s : {"--probe", "--scene", "--pose", "--scene-pose", "--mode", "--json",
+                        "--stiffness", "--epsilon", "--max-iterations", "DEEPEST"}) {
+    EXPECT_NE(r.out.find(s), std::string::npos) << s << " missing from:\n" << r.out;
+  }
+}
+
+TEST(CliTest, PdBoxOverlapKnownDepth) {
+  const RunResult r = RunCli(std::string(kBoxes) + " --pose '1.5 0 0 1 0 0 0' --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = Json(r);
+  EXPECT_TRUE(j.value("colliding", false));
+  EXPECT_EQ(j.value("mode", ""), "pdt");
+  EXPECT_EQ(j.value("status", ""), "penetrating-solved");
+  EXPECT_NEAR(j.value("depth", -1.0), 0.5, kTol);
+  const auto t = j["translation"].get<std::vector<double>>();
+  ASSERT_EQ(t.size(), 3u);
+  EXPECT_NEAR(t[0], 0.5, kTol);
+  EXPECT_NEAR(t[1], 0.0, kTol);
+  EXPECT_NEAR(t[2], 0.0, kTol);
+  const auto p = j["result_pose"].get<std::vector<double>>();
+  ASSERT_EQ(p.size(), 7u);
+  const double expected[7] = {2.0, 0, 0, 1, 0, 0, 0};
+  for (int i = 0; i < 7; ++i) EXPECT_NEAR(p[i], expected[i], kTol) << "result_pose[" << i << "]";
+  EXPECT_GE(j.value("iterations", 0), 1);
+  EXPECT_GE(j.value("contacts", 0), 1);
+  EXPECT_GT(j.value("time_us", 0.0), 0.0);
+  ASSERT_TRUE(j["regions"].is_array());
+  EXPECT_FALSE(j["regions"].empty());
+  EXPECT_GT(j["force"][0].get<double>(), 0.0);  // pushed out along +x
+  ASSERT_EQ(j["bodies"].size(), 1u);
+  const auto& b = j["bodies"][0];
+  EXPECT_EQ(b.value("body", -1), 0);
+  EXPECT_EQ(b.value("source", ""), "shape:box:1,1,1");
+  EXPECT_EQ(b.value("status", ""), "penetrating-solved");
+  EXPECT_NEAR(b.value("depth", -1.0), 0.5, kTol);
+  EXPECT_FALSE(b.contains("failure"));
+}
+
+// One planar face contact is one region with the full depth, so the penalty
+// force is k * 0.5 along +x; by symmetry there is no torque about the
+// probe's centre of mass.
+TEST(CliTest, PdBoxOverlapWrench) {
+  const RunResult r =
+      RunCli(std::string(kBoxes) + " --pose '1.5 0 0 1 0 0 0' --stiffness 2000 --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = Json(r);
+  EXPECT_EQ(j.value("stiffness", 0.0), 2000.0);
+  const auto f = j["force"].get<std::vector<double>>();
+  const auto tau = j["torque"].get<std::vector<double>>();
+  ASSERT_EQ(f.size(), 3u);
+  ASSERT_EQ(tau.size(), 3u);
+  EXPECT_NEAR(f[0], 1000.0, 1e-6);
+  EXPECT_NEAR(f[1], 0.0, 1e-6);
+  EXPECT_NEAR(f[2], 0.0, 1e-6);
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(tau[i], 0.0, 1e-6) << "torque[" << i << "]";
+  ASSERT_EQ(j["regions"].size(), 1u);
+  const auto& reg = j["regions"][0];
+  EXPECT_NEAR(reg.value("depth", -1.0), 0.5, kTol);
+  EXPECT_NEAR(reg["normal"][0].get<double>(), 1.0, kTol);
+  EXPECT_EQ(reg.value("body", -1), 0);
+}
+
+// The rotation of the probe does not matter for a cube rotated by 90 degrees
+// about z; the translation is still 0.5 along +x.
+TEST(CliTest, PdRotatedProbe) {
+  const RunResult r = RunCli(
+      std::string(kBoxes) + " --pose '1.5 0 0 0.70710678118654757 0 0 0.70710678118654757' --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = Json(r);
+  EXPECT_EQ(j.value("status", ""), "penetrating-solved");
+  EXPECT_NEAR(j.value("depth", -1.0), 0.5, kTol);
+  EXPECT_NEAR(j["translation"][0].get<double>(), 0.5, kTol);
+  const auto p = j["result_pose"].get<std::vector<double>>();
+  ASSERT_EQ(p.size(), 7u);
+  EXPECT_NEAR(p[3], std::sqrt(0.5), 1e-12);
+  EXPECT_NEAR(p[6], std::sqrt(0.5), 1e-12);
+}
+
+// Metamorphic: moving both bodies by the same translation changes nothing
+// but the result pose.
+TEST(CliTest, PdCommonTranslation) {
+  const RunResult r = RunCli(std::string(kBoxes) +
+                             " --pose '11.5 -3 2 1 0 0 0' --scene-pose '10 -3 2 1 0 0 0' --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = Json(r);
+  EXPECT_EQ(j.value("status", ""), "penetrating-solved");
+  EXPECT_NEAR(j.value("depth", -1.0), 0.5, kTol);
+  EXPECT_NEAR(j["translation"][0].get<double>(), 0.5, kTol);
+  EXPECT_NEAR(j["result_pose"][0].get<double>(), 12.0, kTol);
+}
+
+TEST(CliTest, PdSeparated) {
+  const RunResult r = RunCli(std::string(kBoxes) + " --pose '2.5 0 0 1 0 0 0' --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = Json(r);
+  EXPECT_FALSE(j.value("colliding", true));
+  EXPECT_EQ(j.value("status", ""), "separated");
+  EXPECT_EQ(j.value("depth", -1.0), 0.0);
+  EXPECT_EQ(j["translation"], nlohmann::json({0.0, 0.0, 0.0}));
+  EXPECT_EQ(j["force"], nlohmann::json({0.0, 0.0, 0.0}));
+  EXPECT_EQ(j["torque"], nlohmann::json({0.0, 0.0, 0.0}));
+  EXPECT_EQ(j["result_pose"], nlohmann::json({2.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0}));
+  EXPECT_TRUE(j["regions"].empty());
+  ASSERT_EQ(j["bodies"].size(), 1u);
+  EXPECT_EQ(j["bodies"][0].value("status", ""), "separated");
+}
+
+// Two scene bodies: the first (moved by --scene-pose to x = 0.3) overlaps the
+// probe at x = -1.5 by 0.2, the second (identity) by 0.5. The top level
+// reports the deeper one; the wrench and counters sum over both.
+TEST(CliTest, PdTwoBodiesReportsDeepest) {
+  const RunResult r = RunCli(std::string(kBoxes) +
+                             " --scene shape:box:1,1,1 --scene-pose '0.3 0 0 1 0 0 0'"
+                             " --pose '-1.5 0 0 1 0 0 0' --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = Json(r);
+  ASSERT_EQ(j["bodies"].size(), 2u);
+  const auto& b0 = j["bodies"][0];
+  const auto& b1 = j["bodies"][1];
+  EXPECT_NEAR(b0.value("depth", -1.0), 0.2, kTol);
+  EXPECT_NEAR(b1.value("depth", -1.0), 0.5, kTol);
+  EXPECT_NEAR(b0["translation"][0].get<double>(), -0.2, kTol);
+  EXPECT_TRUE(j.value("colliding", false));
+  EXPECT_EQ(j.value("deepest_body", -1), 1);
+  EXPECT_NEAR(j.value("depth", -1.0), 0.5, kTol);
+  EXPECT_NEAR(j["translation"][0].get<double>(), -0.5, kTol);
+  EXPECT_NEAR(j["result_pose"][0].get<double>(), -2.0, kTol);
+  EXPECT_EQ(j.value("iterations", 0), b0.value("iterations", 0) + b1.value("iterations", 0));
+  EXPECT_EQ(j.value("contacts", 0), b0.value("contacts", 0) + b1.value("contacts", 0));
+  EXPECT_LT(j["force"][0].get<double>(), 0.0);
+  int regions_of[2] = {0, 0};
+  for (const auto& reg : j["regions"]) ++regions_of[reg.value("body", 0)];
+  EXPECT_EQ(regions_of[0], b0.value("regions", -1));
+  EXPECT_EQ(regions_of[1], b1.value("regions", -1));
+}
+
+TEST(CliTest, PdMeshFileProbe) {
+  // The tetrahedron's file frame is the probe frame: its pose is applied to
+  // the file's coordinates. Far away from the box it is separated.
+  const RunResult r = RunCli(std::string("pd --probe '") + HAPTICPD_TESTDATA_DIR +
+                             "/good/tetra.obj' --scene shape:box --pose '5 5 5 1 0 0 0' --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_FALSE(Json(r).value("colliding", true));
+}
+
+TEST(CliTest, PdHumanReadable) {
+  const RunResult r = RunCli(std::string(kBoxes) + " --pose '1.5 0 0 1 0 0 0'");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* s : {"colliding", "penetrating-solved", "depth", "0.5", "force", "torque",
+                        "iterations", "body 0"}) {
+    EXPECT_NE(r.out.find(s), std::string::npos) << s << " missing from:\n" << r.out;
+  }
+}
+
+TEST(CliTest, PdBadInput) {
+  const std::string ok_pose = " --pose '1.5 0 0 1 0 0 0'";
+  ExpectOneLineError("pd --probe /nonexistent/probe.obj --scene shape:box" + ok_pose,
+                     "/nonexistent/probe.obj: no such file");
+  ExpectOneLineError("pd --probe shape:box --scene /nonexistent/scene.stl" + ok_pose,
+                     "/nonexistent/scene.stl: no such file");
+  ExpectOneLineError(std::string("pd --probe '") + HAPTICPD_TESTDATA_DIR +
+                         "/bad/nan_vertex.obj' --scene shape:box" + ok_pose,
+                     "non-finite");
+  ExpectOneLineError("pd --probe shape:nosuchshape --scene shape:box" + ok_pose,
+                     "unknown shape 'nosuchshape'");
+  ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 1 0 0'", "expected 7 numbers");
+  ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 1 0 0 0 0'", "got 8");
+  ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 1 0 0 1'",
+                     "quaternion (w x y z) has norm 1.41421356, expected 1");
+  ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 1.00001 0 0 0'",
+                     "has norm 1.00001, expected 1");
+  ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 nan 0 1 0 0 0'",
+                     "ty is nan, expected a finite number");
+  ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 inf 0 0 0'", "qw is inf");
+  ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 1 0 0 x'", "'x' is not a number");
+  ExpectOneLineError(std::string(kBoxes) + " --pose '1.5;0 0 1 0 0 0'", "is not a number");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --scene-pose '0 0 0 0.5 0 0 0'",
+                     "--scene-pose 0: quaternion (w x y z) has norm 0.5");
+  ExpectOneLineError(
+      std::string(kBoxes) + ok_pose + " --scene-pose '0 0 0 1 0 0 0' --scene-pose '1 0 0 1 0 0 0'",
+      "2 --scene-pose given for 1 --scene");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode foo", "valid modes: pdt");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode pdg",
+                     "mode pdg is not implemented yet");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --stiffness 0", "--stiffness");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --stiffness -5", "positive");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --epsilon -1e-4", "--epsilon");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --epsilon nan", "--epsilon");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --max-iterations 0", "--max-iterations");
+  ExpectOneLineError("pd --scene shape:box" + ok_pose, "--probe");
+  ExpectOneLineError("pd --probe shape:box" + ok_pose, "--scene");
+  ExpectOneLineError(std::string(kBoxes), "--pose");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --no-such-flag", "--no-such-flag");
+}
+
+}  // namespace
+}  // namespace hapticpd::testing
