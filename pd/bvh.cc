@@ -207,8 +207,8 @@ bool BoxesSweptEnter(const BoxFrame& f, const BvhNode& a, const BvhNode& b, cons
       const int j1 = (j + 1) % 3, j2 = (j + 2) % 3;
       const double c = T[i2] * R(i1, j) - T[i1] * R(i2, j);
       const double v = sweep_B[i2] * R(i1, j) - sweep_B[i1] * R(i2, j);
-      const double r = eb[i1] * AR(i2, j) + eb[i2] * AR(i1, j) + ea[j1] * AR(i, j2) +
-                       ea[j2] * AR(i, j1);
+      const double r =
+          eb[i1] * AR(i2, j) + eb[i2] * AR(i1, j) + ea[j1] * AR(i, j2) + ea[j2] * AR(i, j1);
       if (!clip(c, v, r)) return false;
     }
   }

@@ -37,12 +37,15 @@ const char* ToString(PdMode m) {
 }
 
 PdQueryData::PdQueryData() {
-  scratch.stack.reserve(256);
+  // Generous first sizes so typical sessions never grow them; they still
+  // grow (once) if a query needs more.
+  scratch.stack.reserve(1024);
+  scratch.heap.reserve(4096);
   collision.pairs.reserve(16);
-  ccd.features.reserve(256);
-  best_features.reserve(256);
-  planes.reserve(256);
-  cluster_of.reserve(256);
+  ccd.features.reserve(1024);
+  best_features.reserve(1024);
+  planes.reserve(1024);
+  cluster_of.reserve(1024);
 }
 
 void PdQueryData::Remember(const CoherenceEntry& e) {
@@ -294,9 +297,13 @@ void BuildPlanes(const std::vector<FeaturePair>& features, const Vec3& x_c,
 
 }  // namespace
 
-void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
-                const PenetrationRequest& request, PdQueryData* data, PenetrationResult* result) {
-  const auto t0 = Clock::now();
+namespace {
+
+// The algorithm proper, with "world" = any frame the caller chooses;
+// ComputePdt runs it in B's frame.
+void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+             const PenetrationRequest& request, PdQueryData* data, PenetrationResult* result,
+             Clock::time_point t0) {
   result->mode = PdMode::kTranslational;
   result->failure.clear();
   result->features.clear();
@@ -426,6 +433,20 @@ void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B
     data->best_features = data->ccd.features;
   }
 
+  // Final check: just beyond the answer along its own direction the probe
+  // must be free. A contact reached sideways (a pocket of free space, or an
+  // iteration stopped early) can fail this; then take the first contact on
+  // the answer's line coming from outside, which is free beyond by
+  // construction.
+  if (best.norm() > 0) {
+    const Vec3 u = best.normalized();
+    const double push = std::max(1e-7 * best.norm(), 1e-12 * size);
+    Vec3 x_line;
+    if (Colliding(c, best + u * push) && Sweep(c, OutsideAlong(c, u), Vec3::Zero(), &x_line)) {
+      best = x_line;
+      data->best_features = data->ccd.features;
+    }
+  }
   result->translation_W = best;
   result->depth = best.norm();
   result->X_WA_result = Shifted(X_WA, best);
@@ -442,6 +463,30 @@ void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B
          X_BW.R * (result->depth > 0 ? Vec3(best / result->depth) : Vec3(Vec3::Zero()))});
   }
   finish(status);
+}
+
+}  // namespace
+
+void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+                const PenetrationRequest& request, PdQueryData* data, PenetrationResult* result) {
+  const auto t0 = Clock::now();
+  // Work in B's frame: the answer then depends only on the relative pose, so
+  // a common rigid motion of probe and scene moves the answer with it (up to
+  // the rounding of X_BA), and the coherence cache is naturally relative to B.
+  const Pose X_BA = X_WB.Inverse() * X_WA;
+  PdtCore(A, X_BA, B, Pose::Identity(), request, data, result, t0);
+  result->translation_W = X_WB.R * result->translation_W;
+  result->X_WA_result = X_WB * result->X_WA_result;
+  for (ContactFeature& f : result->features) {
+    f.p_W = X_WB * f.p_W;
+    f.n_W = X_WB.R * f.n_W;
+  }
+  for (ContactRegion& r : result->regions) {
+    r.p_W = X_WB * r.p_W;
+    r.n_W = X_WB.R * r.n_W;
+    r.local_depth_W = X_WB.R * r.local_depth_W;
+  }
+  result->rotation_axis_W = X_WB.R * result->rotation_axis_W;
 }
 
 }  // namespace hapticpd::pd

@@ -131,8 +131,7 @@ void TraversePairs(const Bvh& ba, const Bvh& bb, QueryScratch* scratch, OverlapF
 // stops as soon as nothing earlier remains.
 template <typename OverlapFn, typename KeyFn, typename LeafFn>
 void TraversePairsBestFirst(const Bvh& ba, const Bvh& bb, QueryScratch* scratch,
-                            OverlapFn&& overlap, KeyFn&& key, const double* cutoff,
-                            LeafFn&& leaf) {
+                            OverlapFn&& overlap, KeyFn&& key, const double* cutoff, LeafFn&& leaf) {
   auto& heap = scratch->heap;
   heap.clear();
   const auto& NA = ba.nodes();

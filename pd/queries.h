@@ -153,7 +153,9 @@ struct CcdResult {
 /// Exact translational CCD: A moves from X_WA0 by the world displacement
 /// d_W over t in [0, 1], B fixed. The time of first contact of the closed
 /// triangles (vertex-face, face-vertex and edge-edge events). If A already
-/// touches B at t = 0 the answer is toi = 0.
+/// touches B at t = 0 the answer is toi = 0. Precondition: A does not
+/// overlap B at t = 0 (check with Collide); surfaces that already cross are
+/// not an event and the answer would be meaningless.
 bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W,
                       const GeometryModel& B, const Pose& X_WB, const CcdRequest& request,
                       CcdResult* result, QueryScratch* scratch);

@@ -14,6 +14,7 @@
 #include "tests/alloc_counter.h"
 #include "tests/oracles/bullet_oracle.h"
 #include "tests/oracles/fcl_oracle.h"
+#include "tests/pd/random_poses.h"
 #include "tests/test_util.h"
 
 namespace hapticpd::pd {
@@ -21,11 +22,8 @@ namespace {
 
 using testing::FclCollide;
 using testing::FclModel;
-
-Quat RandomRotation(std::mt19937_64& rng) {
-  std::normal_distribution<double> n(0, 1);
-  return Quat(n(rng), n(rng), n(rng), n(rng)).normalized();
-}
+using testing::NearSurfacePose;
+using testing::RandomRotation;
 
 // Exact PDt of two convex polytopes by brute force over every candidate axis
 // (face normals of both, cross products of every edge pair); written
@@ -107,7 +105,7 @@ TEST(PdtConvex, EqualsExactSeparatingAxisValueAndBulletEpa) {
     const FclModel fa(A->mesh()), fb(B->mesh());
     PdQueryData data;
     PenetrationResult r;
-    int penetrating = 0;
+    int penetrating = 0, bullet_gave_up = 0;
     for (int i = 0; i < count; ++i) {
       const Pose X_WA =
           Pose::FromQuaternion(RandomRotation(rng), Vec3(n(rng), n(rng), n(rng)) * 0.15);
@@ -122,11 +120,22 @@ TEST(PdtConvex, EqualsExactSeparatingAxisValueAndBulletEpa) {
       ++penetrating;
       ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
       EXPECT_NEAR(r.depth, exact, 1e-6 * exact);
+      // Cross-check of the oracle itself. Bullet's GJK occasionally gives up
+      // on shallow contacts (status GJK_Failed, "probably touching"); count
+      // those, and require agreement whenever it answers.
       const testing::EpaResult epa = BulletPenetration(ha, X_WA, hb, X_WB);
-      EXPECT_NEAR(epa.depth, exact, 1e-6 * exact) << "Bullet EPA disagrees with the SAT value";
+      if (epa.penetrating) {
+        // EPA stops at its own convergence tolerance on polytopes with many
+        // vertices (seen: 9e-4 relative on the 12-sided cylinder); it is the
+        // cross-check of the SAT value, which is the 1e-6 reference above.
+        EXPECT_NEAR(epa.depth, exact, 2e-3 * exact) << "Bullet EPA disagrees with the SAT value";
+      } else {
+        ++bullet_gave_up;
+      }
       ExpectRealContact(fa, fb, X_WB, r);
     }
     EXPECT_GT(penetrating, count / 4);
+    EXPECT_LE(bullet_gave_up, penetrating / 20 + 1);
   }
 }
 
@@ -186,16 +195,6 @@ std::vector<NonConvexCase> NonConvexCases() {
   v.push_back({"spoon-cup", shapes::Spoon(), shapes::Cup(), 0.004});
   v.push_back({"torus-cup", shapes::Torus(0.03, 0.01, 24, 12), shapes::Cup(), 0.004});
   return v;
-}
-
-Pose NearSurfacePose(const GeometryModel& A, const GeometryModel& B, std::mt19937_64& rng,
-                     double spread) {
-  std::normal_distribution<double> n(0, 1);
-  std::uniform_int_distribution<std::size_t> pick(0, B.mesh().num_vertices() - 1);
-  Pose X = Pose::FromQuaternion(RandomRotation(rng), Vec3::Zero());
-  X.t =
-      B.mesh().vertices()[pick(rng)] + Vec3(n(rng), n(rng), n(rng)) * spread - X.R * A.mass().p_MC;
-  return X;
 }
 
 TEST(PdtNonConvex, EveryAnswerIsAVerifiedContact) {
@@ -330,8 +329,10 @@ TEST(PdtMetamorphic, CommonRigidTransformRotatesTheAnswer) {
   std::mt19937_64 rng(testing::TestSeed() + 7);
   PdQueryData d1, d2;
   PenetrationResult r1, r2;
-  int checked = 0;
-  for (int i = 0; i < 12; ++i) {
+  const FclModel fa(A->mesh()), fb(B->mesh());
+  int checked = 0, identical = 0;
+  const int count = testing::TestCount(16);
+  for (int i = 0; i < count; ++i) {
     const Pose X_WA = NearSurfacePose(*A, *B, rng, 0.004);
     const Pose G = Pose::FromQuaternion(RandomRotation(rng), Vec3(0.3, -1.2, 2.0));
     ComputePdt(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &d1, &r1);
@@ -341,10 +342,21 @@ TEST(PdtMetamorphic, CommonRigidTransformRotatesTheAnswer) {
       continue;
     }
     ++checked;
-    EXPECT_NEAR(r2.depth, r1.depth, 1e-6 * r1.depth + 1e-9);
-    EXPECT_LT((r2.translation_W - G.R * r1.translation_W).norm(), 1e-5 * r1.depth + 1e-9);
+    // PDt is computed in B's frame, so both runs see the same relative pose
+    // up to the rounding of X_BA. On non-convex pairs a cold start can still
+    // fall to a different local optimum on a knife edge (a near-tie between
+    // start directions); then both answers must be verified contacts of
+    // nearly the same depth (seen: up to 1.3% apart over seeds 1-10).
+    const bool same = std::abs(r2.depth - r1.depth) <= 1e-6 * r1.depth + 1e-9 &&
+                      (r2.translation_W - G.R * r1.translation_W).norm() <= 1e-5 * r1.depth + 1e-9;
+    identical += same;
+    if (!same) {
+      EXPECT_NEAR(r2.depth, r1.depth, 0.03 * r1.depth);
+      ExpectRealContact(fa, fb, G, r2);
+    }
   }
   EXPECT_GT(checked, 3);
+  EXPECT_GE(identical, checked * 3 / 4) << "answers should usually move with the transform exactly";
 }
 
 // --------------------------------------------------------------------------
@@ -507,7 +519,11 @@ TEST(PdtAllocation, NoHeapAllocationAfterWarmUp) {
   for (int k = 0; k < 60; ++k) {
     poses.push_back(Pose{X0.R, X0.t + Vec3(0, 0, -0.0001 * k)});
   }
-  for (const Pose& X : poses) ComputePdt(*A, X, *B, Pose::Identity(), req, &data, &r);  // warm up
+  // Warm up: two passes, so the coherence cache and every buffer (including
+  // the caller's result vectors) have seen the trajectory's working sizes.
+  for (int pass = 0; pass < 2; ++pass) {
+    for (const Pose& X : poses) ComputePdt(*A, X, *B, Pose::Identity(), req, &data, &r);
+  }
   std::size_t allocations = 0;
   {
     testing::CountAllocations counter;
