@@ -177,7 +177,7 @@ bool BoxesOverlap(const BoxFrame& f, const BvhNode& a, const BvhNode& b, double 
 }
 
 bool BoxesSweptEnter(const BoxFrame& f, const BvhNode& a, const BvhNode& b, const Vec3& sweep_B,
-                     double t_max, double* t_enter) {
+                     double t_max, double* t_enter, double margin) {
   const Vec3 T = f.R * a.center + f.t - b.center;
   const Mat3& R = f.R;
   const Mat3& AR = f.absR;
@@ -186,8 +186,8 @@ bool BoxesSweptEnter(const BoxFrame& f, const BvhNode& a, const BvhNode& b, cons
   double lo = 0, hi = t_max;
   // Along axis L: |T.L + t s.L| <= r must hold at contact, with s.L the
   // sweep's projection; clip [lo, hi] to the solutions.
-  auto clip = [&](double c, double v, double r) {
-    r += 1e-12 * (std::abs(c) + r);  // round-off slack: stay conservative
+  auto clip = [&](double c, double v, double r, double len = 1.0) {
+    r += margin * len + 1e-12 * (std::abs(c) + r);  // margin, then round-off slack
     if (v == 0) return std::abs(c) <= r;
     double t0 = (-r - c) / v, t1 = (r - c) / v;
     if (t0 > t1) std::swap(t0, t1);

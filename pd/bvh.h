@@ -76,8 +76,10 @@ bool BoxesOverlap(const BoxFrame& f, const BvhNode& a, const BvhNode& b, double 
 /// the true interval). Returns false when no axis admits overlap in
 /// [0, t_max]; otherwise *t_enter is a lower bound on the first contact time
 /// of anything inside the boxes.
+/// `margin` inflates both boxes (m): the interval then covers every time at
+/// which the boxes are within `margin` of each other.
 bool BoxesSweptEnter(const BoxFrame& f, const BvhNode& a, const BvhNode& b, const Vec3& sweep_B,
-                     double t_max, double* t_enter);
+                     double t_max, double* t_enter, double margin = 0);
 
 /// A lower bound on the distance between box a and box b, from the 6 face
 /// axes (0 when they may overlap).

@@ -159,7 +159,7 @@ void TraversePairsBestFirst(const Bvh& ba, const Bvh& bb, QueryScratch* scratch,
     if (na.leaf() && nb.leaf()) {
       for (Index i = 0; i < na.count; ++i) {
         for (Index j = 0; j < nb.count; ++j) {
-          if (!leaf(PA[na.first + i], PB[nb.first + j])) {
+          if (!leaf(PA[na.first + i], PB[nb.first + j], top.key)) {
             heap.clear();
             return;
           }
@@ -584,19 +584,27 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   const Mesh& mb = B.mesh();
   double t_best = 1;
   bool hit = false;
+  // Leaf pairs whose (feature-tolerance inflated) boxes can meet by t_best
+  // are recorded with their entry time: the contact features at the final
+  // toi are then collected from those pairs alone, without a second
+  // traversal.
+  const double feature_tol = std::max(0.0, request.feature_tolerance);
+  auto& visited = scratch->leaf_pairs;
+  visited.clear();
   // Earliest time a node pair can touch (swept separating-axis interval),
   // infinity when it cannot within [0, t_best]: the best-first traversal
   // finds the first contact early and prunes everything behind it.
   auto earliest = [&](const BvhNode& na, const BvhNode& nb) {
     double t;
-    return internal::BoxesSweptEnter(frame, na, nb, d_B, t_best, &t)
+    return internal::BoxesSweptEnter(frame, na, nb, d_B, t_best, &t, feature_tol)
                ? t
                : std::numeric_limits<double>::infinity();
   };
   TraversePairsBestFirst(
       A.bvh(), B.bvh(), scratch, [](const BvhNode&, const BvhNode&) { return true; }, earliest,
       &t_best,
-      [&](Index fa, Index fb) {
+      [&](Index fa, Index fb, double key) {
+        if (feature_tol > 0) visited.push_back({key, fa, fb});
         const TriB ta = TriangleOfA(ma, X_BA, fa);
         const TriB tb = TriangleOfB(mb, fb);
         const std::uint8_t own_a = ma.owned_mask(fa);
@@ -658,13 +666,30 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
             }
           }
         }
-        return !(hit && t_best <= 0);
+        // Contact at t = 0 ends the search, unless features are wanted:
+        // then every pair that can touch at t = 0 must still be met.
+        return !(hit && t_best <= 0 && feature_tol == 0);
       });
   result->hit = hit;
   result->toi = hit ? t_best : 1.0;
   result->X_WA_contact = X_WA0;
   result->X_WA_contact.t += result->toi * d_W;
-  if (hit) CollectContactFeatures(A, B, X_WB, request, result, scratch);
+  result->features.clear();
+  result->features_truncated = false;
+  if (hit && feature_tol > 0) {
+    const Pose X_BAc{X_BA.R, X_BA.t + result->toi * d_B};
+    ProximityRequest preq;
+    preq.tolerance = feature_tol;
+    preq.max_pairs = request.max_features;
+    for (const QueryScratch::KeyedPair& p : visited) {
+      if (p.key > result->toi) continue;
+      if (!CollectFeatures(A, X_BAc, B, X_WB, p.a, p.b, feature_tol, preq, &result->features)) {
+        result->features_truncated = true;
+        break;
+      }
+    }
+  }
+  visited.clear();
   return hit;
 }
 

@@ -29,7 +29,8 @@ struct QueryScratch {
     double key;
     Index a, b;
   };
-  std::vector<KeyedPair> heap;  ///< best-first traversals (CCD)
+  std::vector<KeyedPair> heap;        ///< best-first traversals (CCD)
+  std::vector<KeyedPair> leaf_pairs;  ///< CCD: leaf pairs met, with entry times
 };
 
 struct TrianglePair {
