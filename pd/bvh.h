@@ -2,14 +2,15 @@
 //
 // Choice of volume: axis-aligned boxes in the mesh's own frame, tested against
 // each other under the relative rigid transform as oriented boxes (the
-// 15-axis separating-axis test). Building is a plain binned-SAH sweep: for the
-// 69,451-triangle bunny it takes a few tens of milliseconds, where FCL's
-// OBBRSS build takes about 280 ms for 100K triangles (PEERS.md), and an OBB
-// tree would need a covariance fit per node. Under rotation an AABB becomes an
-// OBB of the other model's frame, so the pair test costs the same as
-// OBB-vs-OBB; the boxes are looser than fitted OBBs on slanted thin parts,
-// which the leaf tests absorb. Measured numbers are in the README
-// ("Performance") and come from tests/bench/bench_geometry.
+// 15-axis separating-axis test). Measured (tests/bench/bench_geometry, one
+// core of the 2-core build machine): the binned-SAH build takes 22 ms for the
+// 69,451-triangle bunny against 222 ms for FCL's OBBRSS, and a boolean
+// stick-vs-bunny collision query takes 7.3 us p50 / 76 us p99 against FCL's
+// 24.9 / 151 us on the same near-contact poses. Under rotation an AABB becomes
+// an OBB of the other model's frame, so the pair test costs the same as
+// OBB-vs-OBB; fitted OBBs would be tighter on slanted thin parts but need a
+// covariance fit per node (FCL's build time above). Leaves hold up to 4
+// triangles (2 and 8 measured slower on the stick-vs-bunny PDt trajectory).
 #pragma once
 
 #include <vector>
