@@ -47,7 +47,7 @@ struct PenetrationRequest {
   /// re-projection).
   int max_iterations = 12;
   /// Relative improvement below which the iteration stops.
-  double improvement_tolerance = 1e-6;
+  double improvement_tolerance = 1e-4;
   /// Cluster contacts into regions with local depths (needed for force).
   bool compute_regions = true;
   /// Contacts whose normals agree within ~14 degrees form one region. With a
