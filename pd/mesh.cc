@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <mutex>
 #include <sstream>
 
 namespace hapticpd::pd {
@@ -401,21 +402,31 @@ Mesh LoadMesh(const std::string& path, const MeshOptions& options) {
   OpenMesh::IO::Options opt;
   // OpenMesh prints parse complaints on its own error stream; capture them so
   // they become part of our error message instead of stray stderr output.
-  std::ostringstream om_errors;
-  const bool was_enabled = ::omerr().is_enabled();
-  ::omerr().connect(om_errors);
-  ::omerr().disconnect(std::cerr);
+  // The capture stream is connected once for the process (OpenMesh's
+  // disconnect leaks its wrapper, so no connect/disconnect per load), and
+  // reads are serialised: the stream and OpenMesh's reader registry are
+  // process-wide.
+  static std::mutex io_mutex;
+  static std::ostringstream om_errors;
+  std::string why;
   bool ok = false;
-  try {
-    ok = OpenMesh::IO::IOManager().read(path, importer, opt);
-  } catch (const std::exception& e) {
-    om_errors << e.what();
+  {
+    std::lock_guard<std::mutex> lock(io_mutex);
+    static const bool redirected = [] {
+      ::omerr().connect(om_errors);
+      ::omerr().disconnect(std::cerr);
+      return true;
+    }();
+    (void)redirected;
+    om_errors.str(std::string());
+    om_errors.clear();
+    try {
+      ok = OpenMesh::IO::IOManager().read(path, importer, opt);
+    } catch (const std::exception& e) {
+      om_errors << e.what();
+    }
+    why = om_errors.str();
   }
-  ::omerr().disconnect(om_errors);
-  ::omerr().connect(std::cerr);
-  if (!was_enabled) ::omerr().disable();
-
-  std::string why = om_errors.str();
   std::replace(why.begin(), why.end(), '\n', ' ');
   while (!why.empty() && why.back() == ' ') why.pop_back();
   if (!ok && importer.faces.empty()) {

@@ -13,6 +13,8 @@ class CountAllocations {
   CountAllocations(const CountAllocations&) = delete;
   CountAllocations& operator=(const CountAllocations&) = delete;
   std::size_t count() const;
+  /// False under sanitizers, which own operator new.
+  static bool Available();
 };
 
 }  // namespace hapticpd::testing

@@ -508,6 +508,9 @@ TEST(ScenePd, SkipsFarBodiesAndSumsWrenches) {
 }
 
 TEST(PdtAllocation, NoHeapAllocationAfterWarmUp) {
+  if (!testing::CountAllocations::Available()) {
+    GTEST_SKIP() << "allocation counting is off under sanitizers";
+  }
   const ModelPtr A = MakeModel(shapes::Spoon());
   const ModelPtr B = MakeModel(shapes::Cup());
   PdQueryData data;
