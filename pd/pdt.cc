@@ -438,7 +438,15 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   // iteration stopped early) can fail this; then take the first contact on
   // the answer's line coming from outside, which is free beyond by
   // construction.
+  // When every contact normal has a clear positive component along the
+  // answer, moving further out opens every contact to first order and the
+  // collision query is skipped.
+  bool outward = !data->best_features.empty();
   if (best.norm() > 0) {
+    const Vec3 u = best.normalized();
+    for (const FeaturePair& f : data->best_features) outward = outward && f.n_W.dot(u) > 0.05;
+  }
+  if (best.norm() > 0 && !outward) {
     const Vec3 u = best.normalized();
     const double push = std::max(1e-7 * best.norm(), 1e-12 * size);
     Vec3 x_line;
