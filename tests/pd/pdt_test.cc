@@ -72,6 +72,13 @@ void ExpectRealContact(const FclModel& fa, const FclModel& fb, const Pose& X_WB,
   EXPECT_TRUE(FclCollide(fa, in, fb, X_WB)) << "answer is not a contact: free when pulled in";
 }
 
+// The three views of one answer agree: depth, PD vector and result pose.
+void ExpectConsistent(const Pose& X_WA, const PenetrationResult& r) {
+  EXPECT_NEAR(r.translation_W.norm(), r.depth, 1e-12 * (1 + r.depth));
+  EXPECT_LT((r.X_WA_result.t - X_WA.t - r.translation_W).norm(), 1e-12 * (1 + X_WA.t.norm()));
+  EXPECT_LT((r.X_WA_result.R - X_WA.R).norm(), 1e-12);  // PDt never rotates
+}
+
 PenetrationRequest ColdRequest() {
   PenetrationRequest req;
   req.use_coherence = false;
@@ -133,6 +140,7 @@ TEST(PdtConvex, EqualsExactSeparatingAxisValueAndBulletEpa) {
         ++bullet_gave_up;
       }
       ExpectRealContact(fa, fb, X_WB, r);
+      ExpectConsistent(X_WA, r);
     }
     EXPECT_GT(penetrating, count / 4);
     EXPECT_LE(bullet_gave_up, penetrating / 20 + 1);
@@ -221,6 +229,7 @@ TEST(PdtNonConvex, EveryAnswerIsAVerifiedContact) {
       EXPECT_GE(r.iterations, 1);
       EXPECT_FALSE(r.features.empty());
       ExpectRealContact(fa, fb, Pose::Identity(), r);
+      ExpectConsistent(X_WA, r);
     }
     EXPECT_GT(penetrating, count / 4);
   }
