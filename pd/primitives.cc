@@ -806,6 +806,20 @@ struct Earliest {
   }
 };
 
+// Earliest event of the origin moving along d against the closed polygon
+// boundary v[0..n) taken as its edges: the fallback when the polygon is
+// (numerically) flat to a segment or a point.
+bool PolygonEdgesToi(const Vec3* v, int n, const Vec3& d, double t_max, double tol, double* t) {
+  Earliest best;
+  for (int i = 0; i < n; ++i) {
+    double tt = kInf;
+    const bool h = PointSegmentToiLocal(v[i], v[(i + 1) % n], d, t_max, tol, &tt);
+    best.Take(h, tt);
+  }
+  if (best.hit) *t = best.t;
+  return best.hit;
+}
+
 }  // namespace
 
 bool PointTriangleToi(const Vec3& p, const Vec3& d, const Vec3& a, const Vec3& b, const Vec3& c,
@@ -832,14 +846,7 @@ bool PointTriangleToi(const Vec3& p, const Vec3& d, const Vec3& a, const Vec3& b
     }
   }
   // Degenerate: the triangle is (numerically) its edges.
-  Earliest best;
-  for (int i = 0; i < 3; ++i) {
-    double tt = kInf;
-    const bool h = PointSegmentToiLocal(v[i], v[(i + 1) % 3], d, t_max, tol, &tt);
-    best.Take(h, tt);
-  }
-  if (best.hit) *t = best.t;
-  return best.hit;
+  return PolygonEdgesToi(v, 3, d, t_max, tol, t);
 }
 
 bool SegmentSegmentToi(const Vec3& a0, const Vec3& a1, const Vec3& d, const Vec3& b0,
@@ -868,14 +875,7 @@ bool SegmentSegmentToi(const Vec3& a0, const Vec3& a1, const Vec3& d, const Vec3
   }
   // Parallel or zero-length: M is (numerically) the union of its sides, the
   // four endpoint events.
-  Earliest best;
-  for (int i = 0; i < 4; ++i) {
-    double tt = kInf;
-    const bool h = PointSegmentToiLocal(V[i], V[(i + 1) % 4], d, t_max, tol, &tt);
-    best.Take(h, tt);
-  }
-  if (best.hit) *t = best.t;
-  return best.hit;
+  return PolygonEdgesToi(V, 4, d, t_max, tol, t);
 }
 
 }  // namespace hapticpd::pd::internal
