@@ -23,6 +23,36 @@ inline TriB TriangleOfA(const Mesh& A, const Pose& X_BA, Index f) {
   return {{X_BA * V[t[0]], X_BA * V[t[1]], X_BA * V[t[2]]}};
 }
 
+// A's triangle (and its face normal) in B's frame, recomputed only when the
+// triangle changes: the leaf loops pair each A triangle with several B
+// triangles in a row, and re-transforming it for each pair was half the
+// arithmetic of a cheap leaf test.
+class ATriangleCache {
+ public:
+  ATriangleCache(const Mesh& A, const Pose& X_BA) : A_(A), X_BA_(X_BA) {}
+  const TriB& Tri(Index f) {
+    Load(f);
+    return tri_;
+  }
+  const Vec3& Normal(Index f) {
+    Load(f);
+    return normal_;
+  }
+
+ private:
+  void Load(Index f) {
+    if (f == f_) return;
+    f_ = f;
+    tri_ = TriangleOfA(A_, X_BA_, f);
+    normal_ = X_BA_.R * A_.face_normals()[f];
+  }
+  const Mesh& A_;
+  const Pose& X_BA_;
+  Index f_ = -1;
+  TriB tri_;
+  Vec3 normal_ = Vec3::Zero();
+};
+
 inline TriB TriangleOfB(const Mesh& B, Index f) {
   const Triangle& t = B.triangles()[f];
   const auto& V = B.vertices();
@@ -302,13 +332,14 @@ bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   const Mesh& ma = A.mesh();
   const Mesh& mb = B.mesh();
   const Vec3 zero = Vec3::Zero();
+  ATriangleCache a_tris(ma, X_BA);
   TraversePairs(
       A.bvh(), B.bvh(), scratch,
       [&](const BvhNode& na, const BvhNode& nb) {
         return internal::BoxesOverlap(frame, na, nb, 0.0, zero);
       },
       [&](Index fa, Index fb) {
-        const TriB ta = TriangleOfA(ma, X_BA, fa);
+        const TriB& ta = a_tris.Tri(fa);
         const TriB tb = TriangleOfB(mb, fb);
         if (!internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
           return true;
@@ -352,10 +383,11 @@ namespace {
 // Returns false when max_pairs was reached.
 bool CollectFeatures(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
                      const Pose& X_WB, Index fa, Index fb, double tol,
-                     const ProximityRequest& request, std::vector<FeaturePair>* out) {
+                     const ProximityRequest& request, ATriangleCache* a_tris,
+                     std::vector<FeaturePair>* out) {
   const Mesh& ma = A.mesh();
   const Mesh& mb = B.mesh();
-  const TriB ta = TriangleOfA(ma, X_BA, fa);
+  const TriB& ta = a_tris->Tri(fa);
   const TriB tb = TriangleOfB(mb, fb);
   const std::uint8_t own_a = ma.owned_mask(fa);
   const std::uint8_t own_b = mb.owned_mask(fb);
@@ -365,7 +397,7 @@ bool CollectFeatures(const GeometryModel& A, const Pose& X_BA, const GeometryMod
   // round-off from rejecting a pair at exactly the tolerance.
   const double slack = tol + 1e-12 * (1.0 + tb.v[0].cwiseAbs().maxCoeff());
   const Vec3& nb = mb.face_normals()[fb];
-  const Vec3 na = X_BA.R * ma.face_normals()[fa];
+  const Vec3& na = a_tris->Normal(fa);
   const bool has_nb = nb.squaredNorm() > 0, has_na = na.squaredNorm() > 0;
   const PlaneSides a_vs_b = has_nb ? Sides(nb, tb.v[0], ta, slack) : PlaneSides{{0, 0, 0}, false};
   const PlaneSides b_vs_a = has_na ? Sides(na, ta.v[0], tb, slack) : PlaneSides{{0, 0, 0}, false};
@@ -451,13 +483,14 @@ void Proximity(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B,
   const BoxFrame frame(X_BA);
   const Vec3 zero = Vec3::Zero();
   const double tol = std::max(0.0, request.tolerance);
+  ATriangleCache a_tris(A.mesh(), X_BA);
   TraversePairs(
       A.bvh(), B.bvh(), scratch,
       [&](const BvhNode& na, const BvhNode& nb) {
         return internal::BoxesOverlap(frame, na, nb, tol, zero);
       },
       [&](Index fa, Index fb) {
-        if (!CollectFeatures(A, X_BA, B, X_WB, fa, fb, tol, request, &result->pairs)) {
+        if (!CollectFeatures(A, X_BA, B, X_WB, fa, fb, tol, request, &a_tris, &result->pairs)) {
           result->truncated = true;
           return false;
         }
@@ -591,6 +624,7 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   const double feature_tol = std::max(0.0, request.feature_tolerance);
   auto& visited = scratch->leaf_pairs;
   visited.clear();
+  ATriangleCache a_tris(ma, X_BA);
   // Earliest time a node pair can touch (swept separating-axis interval),
   // infinity when it cannot within [0, t_best]: the best-first traversal
   // finds the first contact early and prunes everything behind it.
@@ -605,14 +639,14 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
       &t_best,
       [&](Index fa, Index fb, double key) {
         if (feature_tol > 0) visited.push_back({key, fa, fb});
-        const TriB ta = TriangleOfA(ma, X_BA, fa);
+        const TriB& ta = a_tris.Tri(fa);
         const TriB tb = TriangleOfB(mb, fb);
         const std::uint8_t own_a = ma.owned_mask(fa);
         const std::uint8_t own_b = mb.owned_mask(fb);
         // Plane filters: a feature that stays strictly on one side of the
         // other triangle's plane over [0, t_best] cannot touch it.
         const Vec3& nb = mb.face_normals()[fb];
-        const Vec3 na = X_BA.R * ma.face_normals()[fa];
+        const Vec3& na = a_tris.Normal(fa);
         const double margin = 1e-12 * (1.0 + tb.v[0].cwiseAbs().maxCoeff() + d_B.norm());
         std::array<bool, 3> a_side{false, false, false}, b_side{false, false, false};
         std::array<double, 3> sa{0, 0, 0}, sb{0, 0, 0};
@@ -678,12 +712,14 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   result->features_truncated = false;
   if (hit && feature_tol > 0) {
     const Pose X_BAc{X_BA.R, X_BA.t + result->toi * d_B};
+    ATriangleCache a_tris_c(ma, X_BAc);
     ProximityRequest preq;
     preq.tolerance = feature_tol;
     preq.max_pairs = request.max_features;
     for (const QueryScratch::KeyedPair& p : visited) {
       if (p.key > result->toi) continue;
-      if (!CollectFeatures(A, X_BAc, B, X_WB, p.a, p.b, feature_tol, preq, &result->features)) {
+      if (!CollectFeatures(A, X_BAc, B, X_WB, p.a, p.b, feature_tol, preq, &a_tris_c,
+                           &result->features)) {
         result->features_truncated = true;
         break;
       }
