@@ -45,6 +45,8 @@ PdQueryData::PdQueryData() {
   ccd.features.reserve(1024);
   best_features.reserve(1024);
   planes.reserve(1024);
+  contact_space_B.reserve(1024);
+  carried_planes.reserve(1024);
   cluster_of.reserve(1024);
 }
 
@@ -137,7 +139,8 @@ void BuildRegions(const std::vector<FeaturePair>& features, const Vec3& d_W, dou
   // patches that happen to share a normal far apart on a large probe.
   for (std::size_t i = 0; i < features.size(); ++i) {
     const FeaturePair& f = features[i];
-    const Vec3 p = f.p_WA - d_W;  // the probe's point at the query pose
+    if (!(f.n_W.squaredNorm() > 0.5)) continue;  // no contact plane
+    const Vec3 p = f.p_WA - d_W;                 // the probe's point at the query pose
     int found = -1;
     for (std::size_t r = 0; r < regions->size(); ++r) {
       const ContactRegion& reg = (*regions)[r];
@@ -205,24 +208,39 @@ struct PdtContext {
   const PenetrationRequest& request;
   PdQueryData& data;
   double eps;  // absolute contact tolerance (m)
+  int collision_queries = 0;
+  int ccd_queries = 0;
 };
 
 bool Colliding(PdtContext& c, const Vec3& x) {
   CollisionRequest req;
+  ++c.collision_queries;
   return Collide(c.A, Shifted(c.X_WA, x), c.B, c.X_WB, req, &c.data.collision, &c.data.scratch);
 }
 
+enum class SweepOutcome : std::uint8_t { kStartColliding, kHit, kMiss };
+
 // CCD from x_from to x_to; on a hit returns the contact offset and fills
-// data.ccd.features.
-bool Sweep(PdtContext& c, const Vec3& x_from, const Vec3& x_to, Vec3* x_contact) {
+// data.ccd.features. With `check_start` the start may overlap B (reported as
+// kStartColliding, decided inside the same traversal); without, it must be
+// known to be free.
+SweepOutcome SweepFrom(PdtContext& c, const Vec3& x_from, const Vec3& x_to, Vec3* x_contact,
+                       bool check_start) {
   CcdRequest req;
   req.feature_tolerance = c.eps;
+  req.check_start = check_start;
+  ++c.ccd_queries;
   if (!TranslationalCcd(c.A, Shifted(c.X_WA, x_from), x_to - x_from, c.B, c.X_WB, req, &c.data.ccd,
                         &c.data.scratch)) {
-    return false;
+    return c.data.ccd.start_colliding ? SweepOutcome::kStartColliding : SweepOutcome::kMiss;
   }
   *x_contact = x_from + c.data.ccd.toi * (x_to - x_from);
-  return true;
+  return SweepOutcome::kHit;
+}
+
+// Sweep from a start known to be free.
+bool Sweep(PdtContext& c, const Vec3& x_from, const Vec3& x_to, Vec3* x_contact) {
+  return SweepFrom(c, x_from, x_to, x_contact, false) == SweepOutcome::kHit;
 }
 
 // A free offset far enough along unit u that the bounding spheres are apart.
@@ -236,8 +254,11 @@ Vec3 OutsideAlong(const PdtContext& c, const Vec3& u) {
   return u * std::max(s, 2 * c.eps);
 }
 
-// Offset of the best coherent free start, or false.
-bool CoherentStart(PdtContext& c, Vec3* x_free) {
+// Out-projection from the motion-coherence cache: a contact offset reached
+// by sweeping from a stored configuration (pushed out a little along its
+// direction) to the query pose, or false. The sweep itself checks that its
+// start is free.
+bool CoherentStart(PdtContext& c, Vec3* x_contact) {
   PdQueryData& d = c.data;
   if (!c.request.use_coherence || d.coherence_size_ == 0) return false;
   const Pose X_BW = c.X_WB.Inverse();
@@ -264,14 +285,60 @@ bool CoherentStart(PdtContext& c, Vec3* x_free) {
     for (double push : {2.0, 20.0}) {
       const Vec3 p_B = e.p_BAo + e.dir_B * (push * c.eps);
       const Vec3 x = c.X_WB * p_B - c.X_WA.t;
-      if (!Colliding(c, x)) {
-        *x_free = x;
-        return true;
+      switch (SweepFrom(c, x, Vec3::Zero(), x_contact, true)) {
+        case SweepOutcome::kHit:
+          return true;
+        case SweepOutcome::kMiss:
+          return false;  // free start, yet nothing between it and the query pose
+        case SweepOutcome::kStartColliding:
+          break;
       }
       if (e.dir_B.squaredNorm() == 0) break;
     }
   }
+  // The probe moved deeper than a small push undoes (or turned): pull it
+  // straight back along the nearest entry's direction from outside both
+  // bounding spheres, one sweep instead of a cold start's thirteen.
+  if (order[0] >= 0 && d.coherence[order[0]].dir_B.squaredNorm() > 0) {
+    const Vec3 u = c.X_WB.R * d.coherence[order[0]].dir_B;
+    return SweepFrom(c, OutsideAlong(c, u), Vec3::Zero(), x_contact, false) == SweepOutcome::kHit;
+  }
   return false;
+}
+
+// Contact-space coherence: in-project onto the previous answer's local
+// contact space (moved to this query) and out-project from just outside the
+// result towards the query pose. While the probe slides, this lands next to
+// the new answer with one sweep. Skipped after a large turn, where the
+// stored planes no longer describe the contact.
+bool ContactSpaceStart(PdtContext& c, Vec3* x_contact) {
+  PdQueryData& d = c.data;
+  if (!c.request.use_coherence || !d.contact_space_valid_ || d.contact_space_B.empty()) {
+    return false;
+  }
+  // World = B's frame here (ComputePdt runs the core in B's frame).
+  const double cos_turn = 0.5 * ((d.contact_space_R_BA.transpose() * c.X_WA.R).trace() - 1);
+  if (cos_turn < std::cos(0.05)) return false;
+  const Vec3& p = c.X_WA.t;
+  d.planes.clear();
+  for (const ContactPlane& q : d.contact_space_B) d.planes.push_back({q.n, q.b - q.n.dot(p)});
+  Vec3 x_star;
+  SolveMinNormQp(d.planes, d.contact_space_p_BAo - p, &x_star);
+  const double len = x_star.norm();
+  if (!(len > 0)) return false;
+  return SweepFrom(c, x_star * (1 + 2 * c.eps / len), Vec3::Zero(), x_contact, true) ==
+         SweepOutcome::kHit;
+}
+
+// Adds a plane, merging a near-parallel one (keeping the tightest).
+void AddPlane(const ContactPlane& q, std::vector<ContactPlane>* planes) {
+  for (ContactPlane& p : *planes) {
+    if (p.n.dot(q.n) > 1 - 1e-8) {
+      p.b = std::max(p.b, q.b);
+      return;
+    }
+  }
+  planes->push_back(q);
 }
 
 // Builds the local contact space from CCD features at contact offset x_c.
@@ -282,16 +349,7 @@ void BuildPlanes(const std::vector<FeaturePair>& features, const Vec3& x_c,
     const Vec3& n = f.n_W;
     if (!(n.squaredNorm() > 0.5)) continue;  // degenerate normal: dropped
     // Gap at x: g + n.(x - x_c) >= 0.
-    const double b = n.dot(x_c) - f.signed_distance;
-    bool merged = false;
-    for (ContactPlane& p : *planes) {
-      if (p.n.dot(n) > 1 - 1e-8) {  // near-parallel: keep the tightest
-        p.b = std::max(p.b, b);
-        merged = true;
-        break;
-      }
-    }
-    if (!merged) planes->push_back({n, b});
+    AddPlane({n, n.dot(x_c) - f.signed_distance}, planes);
   }
 }
 
@@ -319,11 +377,14 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   PdtContext c{A, X_WA, B, X_WB, request, *data, std::max(request.contact_epsilon, 1e-12) * size};
   auto finish = [&](PdStatus status) {
     result->status = status;
+    result->collision_queries = c.collision_queries;
+    result->ccd_queries = c.ccd_queries;
     result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
   };
 
   const Pose X_BW = X_WB.Inverse();
   if (!Colliding(c, Vec3::Zero())) {
+    data->contact_space_valid_ = false;
     if (request.use_coherence) {
       data->Remember({X_BW * X_WA.t, X_BW.R * X_WA.R, Vec3::Zero()});
     }
@@ -334,14 +395,14 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   // 1. Free start and out-projection.
   Vec3 best = Vec3::Zero();
   bool have_best = false;
-  Vec3 x_free;
-  if (CoherentStart(c, &x_free)) {
-    Vec3 x_c;
-    if (Sweep(c, x_free, Vec3::Zero(), &x_c)) {
-      best = x_c;
-      have_best = true;
-      data->best_features = data->ccd.features;
-    }
+  if (Vec3 x_c; ContactSpaceStart(c, &x_c)) {
+    best = x_c;
+    have_best = true;
+    data->best_features = data->ccd.features;
+  } else if (CoherentStart(c, &x_c)) {
+    best = x_c;
+    have_best = true;
+    data->best_features = data->ccd.features;
   }
   if (!have_best && A.convex() && B.convex()) {
     // Cold start between convex polytopes: the exact answer directly (the
@@ -391,6 +452,7 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
 
   // 2-5. Iterate: local contact space, in-projection, classification.
   PdStatus status = PdStatus::kPenetratingCapReached;
+  data->carried_planes.clear();
   for (int it = 0; it < request.max_iterations; ++it) {
     result->iterations = it + 1;
     BuildPlanes(data->best_features, best, &data->planes);
@@ -398,31 +460,62 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
       status = PdStatus::kPenetratingSolved;
       break;
     }
+    // After a blocked step, the planes we were sliding along still bound
+    // the free space (we moved from them into free space until something
+    // else blocked us): together they describe the crevice, which one set
+    // alone would zig-zag in.
+    for (const ContactPlane& q : data->carried_planes) AddPlane(q, &data->planes);
     Vec3 x_star;
     SolveMinNormQp(data->planes, best, &x_star);
     const double best_norm = best.norm();
-    if (x_star.norm() >= best_norm * (1 - request.improvement_tolerance) - 0.1 * c.eps) {
-      status = PdStatus::kPenetratingSolved;  // best is optimal in its contact space
-      break;
-    }
+    const double target = best_norm * (1 - request.improvement_tolerance) - 0.1 * c.eps;
     Vec3 x_new;
     bool improved = false;
-    if (!Colliding(c, x_star)) {
-      // Free: out-project again towards the query pose.
-      // (toi = 0 means x* itself is a contact; its features still refine
-      // the local contact space on the next iteration.)
-      if (Sweep(c, x_star, Vec3::Zero(), &x_new) && x_new.norm() < best_norm) improved = true;
-    } else {
-      // In collision: back off from the best contact to its free side and
-      // sweep towards x*.
-      Vec3 n_avg = Vec3::Zero();
-      for (const FeaturePair& f : data->best_features) n_avg += f.n_W;
-      n_avg = n_avg.norm() > 1e-12 ? n_avg.normalized() : best.normalized();
-      Vec3 x_back = best + n_avg * (2 * c.eps);
-      if (Colliding(c, x_back)) x_back = best + best.normalized() * (2 * c.eps);
-      if (!Colliding(c, x_back) && Sweep(c, x_back, x_star, &x_new) &&
-          x_new.norm() < best_norm * (1 - request.improvement_tolerance)) {
+    bool blocked = false;
+    if (x_star.norm() < target) {
+      // Classify x* inside the out-projection sweep from it towards the
+      // query pose (one traversal instead of a collision query plus a sweep).
+      const SweepOutcome from_star = SweepFrom(c, x_star, Vec3::Zero(), &x_new, true);
+      if (from_star == SweepOutcome::kHit) {
+        // Free: out-projected again towards the query pose. (toi = 0 means
+        // x* itself is a contact; its features still refine the local
+        // contact space on the next iteration.)
+        improved = x_new.norm() < best_norm;
+      } else if (from_star == SweepOutcome::kStartColliding) {
+        // In collision: back off from the best contact to its free side and
+        // sweep towards x*.
+        Vec3 n_avg = Vec3::Zero();
+        for (const FeaturePair& f : data->best_features) n_avg += f.n_W;
+        n_avg = n_avg.norm() > 1e-12 ? n_avg.normalized() : best.normalized();
+        SweepOutcome back = SweepFrom(c, best + n_avg * (2 * c.eps), x_star, &x_new, true);
+        if (back == SweepOutcome::kStartColliding) {
+          back = SweepFrom(c, best + best.normalized() * (2 * c.eps), x_star, &x_new, true);
+        }
+        improved = back == SweepOutcome::kHit && x_new.norm() < target;
+        if (improved) {
+          data->carried_planes.swap(data->planes);
+          blocked = true;
+        }
+      }
+    }
+    if (!blocked) data->carried_planes.clear();
+    // x* satisfies every local plane at once: exact where the free space is
+    // locally their intersection (a crevice). At a convex ridge or corner of
+    // the contact space free space is their union, x* stays at the corner,
+    // and coherence would hold the answer there frame after frame. So the
+    // shallowest single plane's projection is tried too (just outside it:
+    // on it the probe would touch, which counts as colliding).
+    if (!improved && data->planes.size() > 1) {
+      const ContactPlane* pick = nullptr;
+      for (const ContactPlane& p : data->planes) {
+        if (p.b > 0 && p.b < target && (pick == nullptr || p.b < pick->b)) pick = &p;
+      }
+      if (pick != nullptr &&
+          SweepFrom(c, (pick->b + 2 * c.eps) * pick->n, Vec3::Zero(), &x_new, true) ==
+              SweepOutcome::kHit &&
+          x_new.norm() < target) {
         improved = true;
+        data->carried_planes.clear();
       }
     }
     if (!improved) {
@@ -441,10 +534,16 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   // When every contact normal has a clear positive component along the
   // answer, moving further out opens every contact to first order and the
   // collision query is skipped.
-  bool outward = !data->best_features.empty();
+  bool outward = false;
   if (best.norm() > 0) {
     const Vec3 u = best.normalized();
-    for (const FeaturePair& f : data->best_features) outward = outward && f.n_W.dot(u) > 0.05;
+    int planes = 0;
+    for (const FeaturePair& f : data->best_features) {
+      if (!(f.n_W.squaredNorm() > 0.5)) continue;  // no contact plane
+      ++planes;
+      if (f.n_W.dot(u) <= 0.05) planes = -1 << 20;
+    }
+    outward = planes > 0;
   }
   if (best.norm() > 0 && !outward) {
     const Vec3 u = best.normalized();
@@ -459,13 +558,21 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   result->depth = best.norm();
   result->X_WA_result = Shifted(X_WA, best);
   for (const FeaturePair& f : data->best_features) {
-    result->features.push_back({f.type, f.a, f.b, f.p_WB, f.n_W});
+    if (f.n_W.squaredNorm() > 0.5) result->features.push_back({f.type, f.a, f.b, f.p_WB, f.n_W});
   }
   if (request.compute_regions) {
     BuildRegions(data->best_features, best, request.region_radius * A.mesh().size(),
                  &data->cluster_of, &result->regions);
   }
   if (request.use_coherence) {
+    BuildPlanes(data->best_features, best, &data->planes);
+    data->contact_space_B.clear();
+    for (const ContactPlane& q : data->planes) {
+      data->contact_space_B.push_back({q.n, q.b + q.n.dot(X_WA.t)});
+    }
+    data->contact_space_R_BA = X_WA.R;
+    data->contact_space_p_BAo = X_WA.t + best;
+    data->contact_space_valid_ = !data->contact_space_B.empty();
     data->Remember(
         {X_BW * result->X_WA_result.t, X_BW.R * X_WA.R,
          X_BW.R * (result->depth > 0 ? Vec3(best / result->depth) : Vec3(Vec3::Zero()))});

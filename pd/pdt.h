@@ -33,7 +33,10 @@ class PdQueryData {
   PdQueryData();
 
   /// Forget the motion-coherence cache (e.g. after a teleport).
-  void ResetCoherence() { coherence_size_ = 0; }
+  void ResetCoherence() {
+    coherence_size_ = 0;
+    contact_space_valid_ = false;
+  }
   int coherence_size() const { return coherence_size_; }
 
   // --- internal state below; public for the algorithm's translation unit.
@@ -47,12 +50,21 @@ class PdQueryData {
   int coherence_head_ = 0;
   int coherence_size_ = 0;
   void Remember(const CoherenceEntry& e);
+  /// The last answer's local contact space, in B's frame and absolute:
+  /// n . p_BAo >= b for the probe origin p_BAo, with the orientation it
+  /// was found at and a point satisfying it (the answer). The next frame
+  /// in-projects onto it before any sweep (contact-space coherence).
+  std::vector<ContactPlane> contact_space_B;
+  Mat3 contact_space_R_BA = Mat3::Identity();
+  Vec3 contact_space_p_BAo = Vec3::Zero();
+  bool contact_space_valid_ = false;
 
   QueryScratch scratch;
   CollisionResult collision;
   CcdResult ccd;
   std::vector<FeaturePair> best_features;
   std::vector<ContactPlane> planes;
+  std::vector<ContactPlane> carried_planes;
   std::vector<int> cluster_of;
 };
 

@@ -64,6 +64,11 @@ struct PenetrationRequest {
   /// along both bodies' principal axes (13 directions) and keep the
   /// shallowest. Convex pairs start from the exact convex answer.
   int cold_start_directions = 13;
+  /// PDg only: run PDt on every query and start from the better of its answer
+  /// and the motion-coherent start (default: PDt only when coherence gives no
+  /// start). Guarantees sqrt(sigma) <= |PDt| on every query at the price of a
+  /// PDt; without coherence (use_coherence false) it always holds.
+  bool pdg_always_pdt_start = false;
 };
 
 /// One contact feature pair used at the answer.
@@ -95,6 +100,9 @@ struct PenetrationResult {
   std::vector<ContactRegion> regions;
   int iterations = 0;
   double time_us = 0;
+  /// Work done: collision queries and CCD sweeps (each a BVH traversal).
+  int collision_queries = 0;
+  int ccd_queries = 0;
   // PDg only.
   double sigma = 0;           ///< object-norm squared distance (m^2)
   double rotation_angle = 0;  ///< radians, of the rotation from X_WA to X_WA_result

@@ -131,8 +131,10 @@ void TraversePairs(const Bvh& ba, const Bvh& bb, QueryScratch* scratch, OverlapF
     stack.pop_back();
     const BvhNode& na = NA[ia];
     const BvhNode& nb = NB[ib];
+    ++scratch->node_tests;
     if (!overlap(na, nb)) continue;
     if (na.leaf() && nb.leaf()) {
+      scratch->triangle_tests += static_cast<std::uint64_t>(na.count) * nb.count;
       for (Index i = 0; i < na.count; ++i) {
         for (Index j = 0; j < nb.count; ++j) {
           if (!leaf(PA[na.first + i], PB[nb.first + j])) {
@@ -172,6 +174,7 @@ void TraversePairsBestFirst(const Bvh& ba, const Bvh& bb, QueryScratch* scratch,
     return x.key > y.key;
   };
   auto push = [&](Index ia, Index ib) {
+    ++scratch->node_tests;
     const double k = key(NA[ia], NB[ib]);
     if (k > *cutoff) return;
     heap.push_back({k, ia, ib});
@@ -187,6 +190,7 @@ void TraversePairsBestFirst(const Bvh& ba, const Bvh& bb, QueryScratch* scratch,
     const BvhNode& nb = NB[top.b];
     if (!overlap(na, nb)) continue;
     if (na.leaf() && nb.leaf()) {
+      scratch->triangle_tests += static_cast<std::uint64_t>(na.count) * nb.count;
       for (Index i = 0; i < na.count; ++i) {
         for (Index j = 0; j < nb.count; ++j) {
           if (!leaf(PA[na.first + i], PB[nb.first + j], top.key)) {
@@ -210,6 +214,47 @@ void TraversePairsBestFirst(const Bvh& ba, const Bvh& bb, QueryScratch* scratch,
 
 // Oriented normal of an edge-edge pair from the edges' cross product, or
 // false when the edges are parallel.
+// Shape of a mesh edge for contact normals: its face normals (rotated by R)
+// and whether the solid's wedge there is flat, convex or reflex.
+enum class EdgeShape : std::uint8_t { kBoundary, kFlat, kConvex, kReflex };
+
+EdgeShape ShapeOfEdge(const Mesh& mesh, Index e, const Mat3& R, Vec3* n1, Vec3* n2) {
+  const Edge& edge = mesh.edges()[e];
+  if (edge.f[0] < 0 || edge.f[1] < 0) {
+    *n1 = R * mesh.face_normals()[edge.f[0] >= 0 ? edge.f[0] : edge.f[1]];
+    *n2 = *n1;
+    return EdgeShape::kBoundary;
+  }
+  const Vec3& m1 = mesh.face_normals()[edge.f[0]];
+  const Vec3& m2 = mesh.face_normals()[edge.f[1]];
+  *n1 = R * m1;
+  *n2 = R * m2;
+  if (m1.dot(m2) > 1 - 1e-9) return EdgeShape::kFlat;
+  // The second face's far vertex lies below the first face's plane at a
+  // convex edge.
+  const Triangle& t2 = mesh.triangles()[edge.f[1]];
+  Index far = t2[0];
+  for (Index v : t2) {
+    if (v != edge.v[0] && v != edge.v[1]) far = v;
+  }
+  const double side = m1.dot(mesh.vertices()[far] - mesh.vertices()[edge.v[0]]);
+  return side < 0 ? EdgeShape::kConvex : EdgeShape::kReflex;
+}
+
+// Is unit v (perpendicular to a convex edge) between its face normals n1, n2?
+bool InNormalCone(const Vec3& v, const Vec3& n1, const Vec3& n2) {
+  const Vec3 m = n1.cross(n2);
+  const double tol = -1e-9 * m.norm();
+  return n1.cross(v).dot(m) >= tol && v.cross(n2).dot(m) >= tol && v.dot(n1 + n2) > 0;
+}
+
+// Oriented normal of an edge-edge pair (false for parallel edges; a zero
+// normal when the pair gives no contact plane of its own). The normal must separate the two solids'
+// wedges at the contact: it lies in B's normal cone and its opposite in A's. Where an edge is flat
+// (both faces coplanar) the contact is a face contact and the face's normal is used; where both
+// edges are convex and the edges' cross product lies in neither orientation's cones, the normal is
+// zero (the vertex-face pairs around it describe the contact). Boundary and reflex edges fall back
+// to orienting the cross product away from B's faces and against A's.
 bool EdgeEdgeNormal(const GeometryModel& A, const Mat3& R_BA, Index ea, const GeometryModel& B,
                     Index eb, const Vec3& a0, const Vec3& a1, const Vec3& b0, const Vec3& b1,
                     const Vec3& witness_dir, double parallel_sine, Vec3* n) {
@@ -218,15 +263,31 @@ bool EdgeEdgeNormal(const GeometryModel& A, const Mat3& R_BA, Index ea, const Ge
   const double len = c.norm();
   if (!(len > parallel_sine * da.norm() * db.norm()) || len == 0) return false;
   c /= len;
-  Vec3 sum_b = Vec3::Zero(), sum_a = Vec3::Zero();
-  for (Index f : B.mesh().edges()[eb].f) {
-    if (f >= 0) sum_b += B.mesh().face_normals()[f];
+  Vec3 nb1, nb2, na1, na2;
+  const EdgeShape sb = ShapeOfEdge(B.mesh(), eb, Mat3::Identity(), &nb1, &nb2);
+  const EdgeShape sa = ShapeOfEdge(A.mesh(), ea, R_BA, &na1, &na2);
+  if (sb == EdgeShape::kFlat) {
+    *n = nb1;
+    return true;
   }
-  for (Index f : A.mesh().edges()[ea].f) {
-    if (f >= 0) sum_a += R_BA * A.mesh().face_normals()[f];
+  if (sa == EdgeShape::kFlat) {
+    *n = -na1;
+    return true;
+  }
+  if (sb == EdgeShape::kConvex && sa == EdgeShape::kConvex) {
+    const bool pos = InNormalCone(c, nb1, nb2) && InNormalCone(-c, na1, na2);
+    const bool neg = InNormalCone(-c, nb1, nb2) && InNormalCone(c, na1, na2);
+    if (pos != neg) {
+      *n = pos ? c : Vec3(-c);
+      return true;
+    }
+    if (!pos) {
+      n->setZero();  // no contact plane of its own
+      return true;
+    }
   }
   // Away from B's solid and into the direction opposite A's outward faces.
-  double s = c.dot(sum_b) - c.dot(sum_a);
+  double s = c.dot(nb1 + nb2) - c.dot(na1 + na2);
   if (std::abs(s) < 1e-12) s = c.dot(witness_dir);
   *n = s < 0 ? -c : c;
   return true;
@@ -320,6 +381,28 @@ bool PointInside(const GeometryModel& model, const Vec3& p_M, QueryScratch* scra
   return winding != 0;
 }
 
+namespace {
+
+// Given that no triangles of A and B cross, A (at X_BA in B's mesh frame) and
+// B are either disjoint or one lies wholly inside the other: one vertex of
+// each decides.
+Containment ContainmentWithoutCrossing(const GeometryModel& A, const GeometryModel& B,
+                                       const Pose& X_BA, QueryScratch* scratch) {
+  const Mesh& ma = A.mesh();
+  const Mesh& mb = B.mesh();
+  if (B.closed()) {
+    const Vec3 p_B = X_BA * ma.vertices()[ma.triangles()[0][0]];
+    if (PointInside(B, p_B, scratch)) return Containment::kAInsideB;
+  }
+  if (A.closed()) {
+    const Vec3 p_A = X_BA.Inverse() * mb.vertices()[mb.triangles()[0][0]];
+    if (PointInside(A, p_A, scratch)) return Containment::kBInsideA;
+  }
+  return Containment::kNone;
+}
+
+}  // namespace
+
 bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
              const CollisionRequest& request, CollisionResult* result, QueryScratch* scratch) {
   result->colliding = false;
@@ -358,17 +441,7 @@ bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     return true;
   }
   if (!request.containment) return false;
-  // No surface crossing: either disjoint or one wholly inside the other; one
-  // vertex of each decides.
-  if (B.closed()) {
-    const Vec3 p_B = X_BA * ma.vertices()[ma.triangles()[0][0]];
-    if (PointInside(B, p_B, scratch)) result->containment = Containment::kAInsideB;
-  }
-  if (result->containment == Containment::kNone && A.closed()) {
-    const Pose X_AB = X_BA.Inverse();
-    const Vec3 p_A = X_AB * mb.vertices()[mb.triangles()[0][0]];
-    if (PointInside(A, p_A, scratch)) result->containment = Containment::kBInsideA;
-  }
+  result->containment = ContainmentWithoutCrossing(A, B, X_BA, scratch);
   result->colliding = result->containment != Containment::kNone;
   return result->colliding;
 }
@@ -610,8 +683,10 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   result->hit = false;
   result->toi = 1;
   result->iterations = 0;
+  result->start_colliding = false;
   const Pose X_BA = X_WB.Inverse() * X_WA0;
   const Vec3 d_B = X_WB.R.transpose() * d_W;
+  bool start_crossing = false;
   const BoxFrame frame(X_BA);
   const Mesh& ma = A.mesh();
   const Mesh& mb = B.mesh();
@@ -638,9 +713,16 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
       A.bvh(), B.bvh(), scratch, [](const BvhNode&, const BvhNode&) { return true; }, earliest,
       &t_best,
       [&](Index fa, Index fb, double key) {
-        if (feature_tol > 0) visited.push_back({key, fa, fb});
         const TriB& ta = a_tris.Tri(fa);
         const TriB tb = TriangleOfB(mb, fb);
+        // Pairs whose boxes overlap at t = 0 (key 0) come first in the
+        // best-first order and are all met: the start check lives here.
+        if (request.check_start && key <= 0 &&
+            internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
+          start_crossing = true;
+          return false;
+        }
+        if (feature_tol > 0) visited.push_back({key, fa, fb});
         const std::uint8_t own_a = ma.owned_mask(fa);
         const std::uint8_t own_b = mb.owned_mask(fb);
         // Plane filters: a feature that stays strictly on one side of the
@@ -700,10 +782,20 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
             }
           }
         }
-        // Contact at t = 0 ends the search, unless features are wanted:
-        // then every pair that can touch at t = 0 must still be met.
-        return !(hit && t_best <= 0 && feature_tol == 0);
+        // Contact at t = 0 ends the search, unless features are wanted or
+        // the start is being checked: then every pair that can touch at
+        // t = 0 must still be met.
+        return !(hit && t_best <= 0 && feature_tol == 0 && !request.check_start);
       });
+  if (request.check_start &&
+      (start_crossing || ContainmentWithoutCrossing(A, B, X_BA, scratch) != Containment::kNone)) {
+    result->start_colliding = true;
+    result->X_WA_contact = X_WA0;
+    result->features.clear();
+    result->features_truncated = false;
+    visited.clear();
+    return false;
+  }
   result->hit = hit;
   result->toi = hit ? t_best : 1.0;
   result->X_WA_contact = X_WA0;

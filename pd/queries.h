@@ -31,6 +31,11 @@ struct QueryScratch {
   };
   std::vector<KeyedPair> heap;        ///< best-first traversals (CCD)
   std::vector<KeyedPair> leaf_pairs;  ///< CCD: leaf pairs met, with entry times
+  /// Work counters, accumulated over every query using this scratch (reset
+  /// them to measure one query): bounding-volume pair tests and triangle
+  /// pairs examined.
+  std::uint64_t node_tests = 0;
+  std::uint64_t triangle_tests = 0;
 };
 
 struct TrianglePair {
@@ -87,8 +92,12 @@ struct FeaturePair {
   Vec3 p_WA = Vec3::Zero();  ///< witness point on A's feature
   Vec3 p_WB = Vec3::Zero();  ///< witness point on B's feature
   /// Unit feature normal from B towards A: VF -> B's face normal; FV -> minus
-  /// A's face normal; EE -> the edges' cross product, oriented away from B
-  /// using the faces adjacent to both edges.
+  /// A's face normal; EE -> the edges' cross product, oriented so that it
+  /// separates the two solids' wedges at the edges (in B's normal cone, its
+  /// opposite in A's); at an edge whose faces are coplanar, that face's
+  /// normal. Zero for an EE pair of two convex edges whose cross product
+  /// separates the wedges in neither orientation: such a pair has no
+  /// contact plane of its own (the vertex-face pairs around it do).
   Vec3 n_W = Vec3::Zero();
   double distance = 0;  ///< |p_WA - p_WB|
   /// (p_WA - p_WB) . n_W: negative when A's feature lies behind B's.
@@ -140,6 +149,13 @@ struct CcdRequest {
   double distance_tolerance = 1e-6;
   /// Rigid-motion CCD only: iteration cap of conservative advancement.
   int max_iterations = 200;
+  /// Translational CCD only: also decide whether A already overlaps B at
+  /// t = 0 (surfaces crossing or touching, or containment, exactly as
+  /// Collide says), instead of requiring a free start. The check reuses the
+  /// traversal, which meets every pair that can touch at t = 0 anyway, so it
+  /// is much cheaper than a separate Collide. When the start overlaps, the
+  /// query stops with `start_colliding` set and no time of impact.
+  bool check_start = false;
 };
 
 struct CcdResult {
@@ -149,6 +165,8 @@ struct CcdResult {
   std::vector<FeaturePair> features;  ///< pairs within feature_tolerance at toi
   bool features_truncated = false;
   int iterations = 0;  ///< conservative-advancement steps (rigid CCD)
+  /// With CcdRequest::check_start: A overlaps B at t = 0 (then hit is false).
+  bool start_colliding = false;
 };
 
 /// Exact translational CCD: A moves from X_WA0 by the world displacement
@@ -156,7 +174,8 @@ struct CcdResult {
 /// triangles (vertex-face, face-vertex and edge-edge events). If A already
 /// touches B at t = 0 the answer is toi = 0. Precondition: A does not
 /// overlap B at t = 0 (check with Collide); surfaces that already cross are
-/// not an event and the answer would be meaningless.
+/// not an event and the answer would be meaningless (or set
+/// request.check_start to have the query check it).
 bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W,
                       const GeometryModel& B, const Pose& X_WB, const CcdRequest& request,
                       CcdResult* result, QueryScratch* scratch);
