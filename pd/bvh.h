@@ -13,6 +13,7 @@
 // triangles (2 and 8 measured slower on the stick-vs-bunny PDt trajectory).
 #pragma once
 
+#include <array>
 #include <vector>
 
 #include "pd/mesh.h"
@@ -81,6 +82,22 @@ bool BoxesOverlap(const BoxFrame& f, const BvhNode& a, const BvhNode& b, double 
 /// which the boxes are within `margin` of each other.
 bool BoxesSweptEnter(const BoxFrame& f, const BvhNode& a, const BvhNode& b, const Vec3& sweep_B,
                      double t_max, double* t_enter, double margin = 0);
+
+/// A BoxFrame with a sweep: the sweep's projection on each of the 15 axes
+/// and its reciprocal are fixed for a whole query, so they are computed once
+/// and the per-pair test needs no division.
+struct SweptBoxFrame {
+  BoxFrame f;
+  Vec3 sweep;                  ///< displacement of A, in B
+  std::array<double, 15> v;    ///< sweep . axis (B axes, A axes, cross axes)
+  std::array<double, 15> inv;  ///< 1 / v (unused where v == 0)
+  SweptBoxFrame(const Pose& X_BA, const Vec3& sweep_B);
+};
+
+/// Same as BoxesSweptEnter above (identical intervals), with the sweep's
+/// per-axis terms taken from `sf`.
+bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const BvhNode& b, double t_max,
+                     double* t_enter, double margin = 0);
 
 /// A lower bound on the distance between box a and box b, from the 6 face
 /// axes (0 when they may overlap).

@@ -38,6 +38,15 @@ class ATriangleCache {
     Load(f);
     return normal_;
   }
+  /// Corners of the triangle's axis-aligned box in B's frame.
+  const Vec3& Lo(Index f) {
+    Load(f);
+    return lo_;
+  }
+  const Vec3& Hi(Index f) {
+    Load(f);
+    return hi_;
+  }
 
  private:
   void Load(Index f) {
@@ -45,12 +54,16 @@ class ATriangleCache {
     f_ = f;
     tri_ = TriangleOfA(A_, X_BA_, f);
     normal_ = X_BA_.R * A_.face_normals()[f];
+    lo_ = tri_.v[0].cwiseMin(tri_.v[1]).cwiseMin(tri_.v[2]);
+    hi_ = tri_.v[0].cwiseMax(tri_.v[1]).cwiseMax(tri_.v[2]);
   }
   const Mesh& A_;
   const Pose& X_BA_;
   Index f_ = -1;
   TriB tri_;
   Vec3 normal_ = Vec3::Zero();
+  Vec3 lo_ = Vec3::Zero();
+  Vec3 hi_ = Vec3::Zero();
 };
 
 inline TriB TriangleOfB(const Mesh& B, Index f) {
@@ -416,6 +429,8 @@ bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   const Mesh& mb = B.mesh();
   const Vec3 zero = Vec3::Zero();
   ATriangleCache a_tris(ma, X_BA);
+  const double box_slack =
+      1e-12 * (1.0 + mb.bounds().hi.cwiseAbs().maxCoeff() + mb.bounds().lo.cwiseAbs().maxCoeff());
   TraversePairs(
       A.bvh(), B.bvh(), scratch,
       [&](const BvhNode& na, const BvhNode& nb) {
@@ -424,6 +439,13 @@ bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
       [&](Index fa, Index fb) {
         const TriB& ta = a_tris.Tri(fa);
         const TriB tb = TriangleOfB(mb, fb);
+        // Disjoint triangle boxes (with round-off slack) cannot intersect.
+        const Vec3 b_lo = tb.v[0].cwiseMin(tb.v[1]).cwiseMin(tb.v[2]);
+        const Vec3 b_hi = tb.v[0].cwiseMax(tb.v[1]).cwiseMax(tb.v[2]);
+        if (((a_tris.Lo(fa).array() - box_slack) > b_hi.array()).any() ||
+            (b_lo.array() > (a_tris.Hi(fa).array() + box_slack)).any()) {
+          return true;
+        }
         if (!internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
           return true;
         }
@@ -687,7 +709,7 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   const Pose X_BA = X_WB.Inverse() * X_WA0;
   const Vec3 d_B = X_WB.R.transpose() * d_W;
   bool start_crossing = false;
-  const BoxFrame frame(X_BA);
+  const internal::SweptBoxFrame swept(X_BA, d_B);
   const Mesh& ma = A.mesh();
   const Mesh& mb = B.mesh();
   double t_best = 1;
@@ -700,12 +722,16 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   auto& visited = scratch->leaf_pairs;
   visited.clear();
   ATriangleCache a_tris(ma, X_BA);
+  // Round-off slack for the per-triangle box cull (relative to the scene's
+  // coordinates and the sweep).
+  const double box_slack = 1e-12 * (1.0 + mb.bounds().hi.cwiseAbs().maxCoeff() +
+                                    mb.bounds().lo.cwiseAbs().maxCoeff() + d_B.norm());
   // Earliest time a node pair can touch (swept separating-axis interval),
   // infinity when it cannot within [0, t_best]: the best-first traversal
   // finds the first contact early and prunes everything behind it.
   auto earliest = [&](const BvhNode& na, const BvhNode& nb) {
     double t;
-    return internal::BoxesSweptEnter(frame, na, nb, d_B, t_best, &t, feature_tol)
+    return internal::BoxesSweptEnter(swept, na, nb, t_best, &t, feature_tol)
                ? t
                : std::numeric_limits<double>::infinity();
   };
@@ -715,6 +741,20 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
       [&](Index fa, Index fb, double key) {
         const TriB& ta = a_tris.Tri(fa);
         const TriB tb = TriangleOfB(mb, fb);
+        {
+          // The triangles' own boxes (A's swept over [0, t_best], both
+          // inflated by the feature tolerance) cull most pairs of a leaf
+          // pair: nothing of them can meet or come within tolerance.
+          const Vec3 step = t_best * d_B;
+          const Vec3 pad = Vec3::Constant(feature_tol + box_slack);
+          const Vec3 a_lo = a_tris.Lo(fa) + step.cwiseMin(0.0) - pad;
+          const Vec3 a_hi = a_tris.Hi(fa) + step.cwiseMax(0.0) + pad;
+          const Vec3 b_lo = tb.v[0].cwiseMin(tb.v[1]).cwiseMin(tb.v[2]);
+          const Vec3 b_hi = tb.v[0].cwiseMax(tb.v[1]).cwiseMax(tb.v[2]);
+          if ((a_lo.array() > b_hi.array()).any() || (b_lo.array() > a_hi.array()).any()) {
+            return true;
+          }
+        }
         // Pairs whose boxes overlap at t = 0 (key 0) come first in the
         // best-first order and are all met: the start check lives here.
         if (request.check_start && key <= 0 &&
