@@ -258,7 +258,7 @@ Vec3 OutsideAlong(const PdtContext& c, const Vec3& u) {
 // by sweeping from a stored configuration (pushed out a little along its
 // direction) to the query pose, or false. The sweep itself checks that its
 // start is free.
-bool CoherentStart(PdtContext& c, Vec3* x_contact) {
+bool CoherentStart(PdtContext& c, bool try_pushes, Vec3* x_contact) {
   PdQueryData& d = c.data;
   if (!c.request.use_coherence || d.coherence_size_ == 0) return false;
   const Pose X_BW = c.X_WB.Inverse();
@@ -279,7 +279,7 @@ bool CoherentStart(PdtContext& c, Vec3* x_contact) {
       dist[1] = di;
     }
   }
-  for (int k = 0; k < 2 && order[k] >= 0; ++k) {
+  for (int k = 0; try_pushes && k < 2 && order[k] >= 0; ++k) {
     const PdQueryData::CoherenceEntry& e = d.coherence[order[k]];
     // A stored contact is touching: push it out a little along its direction.
     for (double push : {2.0, 20.0}) {
@@ -311,23 +311,22 @@ bool CoherentStart(PdtContext& c, Vec3* x_contact) {
 // result towards the query pose. While the probe slides, this lands next to
 // the new answer with one sweep. Skipped after a large turn, where the
 // stored planes no longer describe the contact.
-bool ContactSpaceStart(PdtContext& c, Vec3* x_contact) {
+SweepOutcome ContactSpaceStart(PdtContext& c, Vec3* x_contact) {
   PdQueryData& d = c.data;
   if (!c.request.use_coherence || !d.contact_space_valid_ || d.contact_space_B.empty()) {
-    return false;
+    return SweepOutcome::kMiss;
   }
   // World = B's frame here (ComputePdt runs the core in B's frame).
   const double cos_turn = 0.5 * ((d.contact_space_R_BA.transpose() * c.X_WA.R).trace() - 1);
-  if (cos_turn < std::cos(0.05)) return false;
+  if (cos_turn < std::cos(0.05)) return SweepOutcome::kMiss;
   const Vec3& p = c.X_WA.t;
   d.planes.clear();
   for (const ContactPlane& q : d.contact_space_B) d.planes.push_back({q.n, q.b - q.n.dot(p)});
   Vec3 x_star;
   SolveMinNormQp(d.planes, d.contact_space_p_BAo - p, &x_star);
   const double len = x_star.norm();
-  if (!(len > 0)) return false;
-  return SweepFrom(c, x_star * (1 + 2 * c.eps / len), Vec3::Zero(), x_contact, true) ==
-         SweepOutcome::kHit;
+  if (!(len > 0)) return SweepOutcome::kMiss;
+  return SweepFrom(c, x_star * (1 + 2 * c.eps / len), Vec3::Zero(), x_contact, true);
 }
 
 // Adds a plane, merging a near-parallel one (keeping the tightest).
@@ -395,11 +394,17 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   // 1. Free start and out-projection.
   Vec3 best = Vec3::Zero();
   bool have_best = false;
-  if (Vec3 x_c; ContactSpaceStart(c, &x_c)) {
+  // Contact-space start; when its in-projection collides, the probe has
+  // moved into the surface faster than the stored contact can follow, and
+  // small push-outs of stored configurations would collide too: go
+  // straight to the pull-back along the stored direction.
+  Vec3 x_c;
+  const SweepOutcome from_space = ContactSpaceStart(c, &x_c);
+  if (from_space == SweepOutcome::kHit) {
     best = x_c;
     have_best = true;
     data->best_features = data->ccd.features;
-  } else if (CoherentStart(c, &x_c)) {
+  } else if (CoherentStart(c, from_space != SweepOutcome::kStartColliding, &x_c)) {
     best = x_c;
     have_best = true;
     data->best_features = data->ccd.features;
@@ -473,29 +478,27 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     bool improved = false;
     bool blocked = false;
     if (x_star.norm() < target) {
-      // Classify x* inside the out-projection sweep from it towards the
-      // query pose (one traversal instead of a collision query plus a sweep).
-      const SweepOutcome from_star = SweepFrom(c, x_star, Vec3::Zero(), &x_new, true);
-      if (from_star == SweepOutcome::kHit) {
-        // Free: out-projected again towards the query pose. (toi = 0 means
-        // x* itself is a contact; its features still refine the local
-        // contact space on the next iteration.)
+      // Slide from the best contact (backed off to its free side) towards
+      // x*. Blocked on the way: that contact is the candidate (x* itself
+      // collides, as it does most of the time on curved or crowded
+      // surfaces). Not blocked: x* is free, and the out-projection from it
+      // towards the query pose is the candidate.
+      Vec3 n_avg = Vec3::Zero();
+      for (const FeaturePair& f : data->best_features) n_avg += f.n_W;
+      n_avg = n_avg.norm() > 1e-12 ? n_avg.normalized() : best.normalized();
+      SweepOutcome back = SweepFrom(c, best + n_avg * (2 * c.eps), x_star, &x_new, true);
+      if (back == SweepOutcome::kStartColliding) {
+        back = SweepFrom(c, best + best.normalized() * (2 * c.eps), x_star, &x_new, true);
+      }
+      if (back == SweepOutcome::kHit && x_new.norm() < target) {
+        improved = true;
+        data->carried_planes.swap(data->planes);
+        blocked = true;
+      } else if (SweepFrom(c, x_star, Vec3::Zero(), &x_new, back != SweepOutcome::kMiss) ==
+                 SweepOutcome::kHit) {
+        // (toi = 0 means x* itself is a contact; its features still refine
+        // the local contact space on the next iteration.)
         improved = x_new.norm() < best_norm;
-      } else if (from_star == SweepOutcome::kStartColliding) {
-        // In collision: back off from the best contact to its free side and
-        // sweep towards x*.
-        Vec3 n_avg = Vec3::Zero();
-        for (const FeaturePair& f : data->best_features) n_avg += f.n_W;
-        n_avg = n_avg.norm() > 1e-12 ? n_avg.normalized() : best.normalized();
-        SweepOutcome back = SweepFrom(c, best + n_avg * (2 * c.eps), x_star, &x_new, true);
-        if (back == SweepOutcome::kStartColliding) {
-          back = SweepFrom(c, best + best.normalized() * (2 * c.eps), x_star, &x_new, true);
-        }
-        improved = back == SweepOutcome::kHit && x_new.norm() < target;
-        if (improved) {
-          data->carried_planes.swap(data->planes);
-          blocked = true;
-        }
       }
     }
     if (!blocked) data->carried_planes.clear();

@@ -186,19 +186,34 @@ void TraversePairsBestFirst(const Bvh& ba, const Bvh& bb, QueryScratch* scratch,
   auto later = [](const QueryScratch::KeyedPair& x, const QueryScratch::KeyedPair& y) {
     return x.key > y.key;
   };
+  // Pairs that can meet at t = 0 (key 0) come before everything else and are
+  // all visited whatever happens later: they go on a plain stack (depth
+  // first, no heap upkeep); the heap orders the rest.
+  auto& now = scratch->stack;
+  now.clear();
   auto push = [&](Index ia, Index ib) {
     ++scratch->node_tests;
     const double k = key(NA[ia], NB[ib]);
     if (k > *cutoff) return;
+    if (k <= 0) {
+      now.emplace_back(ia, ib);
+      return;
+    }
     heap.push_back({k, ia, ib});
     std::push_heap(heap.begin(), heap.end(), later);
   };
   push(0, 0);
-  while (!heap.empty()) {
-    std::pop_heap(heap.begin(), heap.end(), later);
-    const QueryScratch::KeyedPair top = heap.back();
-    heap.pop_back();
-    if (top.key > *cutoff) break;  // everything left starts later
+  while (!now.empty() || !heap.empty()) {
+    QueryScratch::KeyedPair top;
+    if (!now.empty()) {
+      top = {0.0, now.back().first, now.back().second};
+      now.pop_back();
+    } else {
+      std::pop_heap(heap.begin(), heap.end(), later);
+      top = heap.back();
+      heap.pop_back();
+      if (top.key > *cutoff) break;  // everything left starts later
+    }
     const BvhNode& na = NA[top.a];
     const BvhNode& nb = NB[top.b];
     if (!overlap(na, nb)) continue;
@@ -208,6 +223,7 @@ void TraversePairsBestFirst(const Bvh& ba, const Bvh& bb, QueryScratch* scratch,
         for (Index j = 0; j < nb.count; ++j) {
           if (!leaf(PA[na.first + i], PB[nb.first + j], top.key)) {
             heap.clear();
+            now.clear();
             return;
           }
         }
@@ -223,6 +239,7 @@ void TraversePairsBestFirst(const Bvh& ba, const Bvh& bb, QueryScratch* scratch,
     }
   }
   heap.clear();
+  now.clear();
 }
 
 // Oriented normal of an edge-edge pair from the edges' cross product, or
