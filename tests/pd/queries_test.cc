@@ -400,6 +400,58 @@ TEST(TranslationalCcd, MatchesBisectionWithFclCollide) {
   EXPECT_GT(hits, count / 3);
 }
 
+TEST(TranslationalCcd, StartCheckAgreesWithFclAndKeepsTheTimeOfImpact) {
+  // Starts spread from deep inside to just outside the cup's surface, swept
+  // in random directions: with check_start the CCD must call a start
+  // colliding exactly when FCL finds the surfaces intersecting (or, for the
+  // one containment start below, when the spoon lies wholly inside), and on
+  // a free start give the same answer as the CCD without the check.
+  const ModelPtr a = MakeModel(shapes::Spoon());
+  const ModelPtr b = MakeModel(shapes::Cup());
+  const FclModel fa(a->mesh()), fb(b->mesh());
+  std::mt19937_64 rng(testing::TestSeed() + 3);
+  std::normal_distribution<double> n(0, 1);
+  QueryScratch s;
+  CcdResult checked, plain;
+  CcdRequest req_checked, req_plain;
+  req_checked.check_start = true;
+  req_checked.feature_tolerance = req_plain.feature_tolerance = 1e-5;
+  const int count = testing::TestCount(80);
+  int colliding = 0, free_hits = 0;
+  for (int i = 0; i < count; ++i) {
+    const Pose X0 = NearSurfacePose(*a, *b, rng, 0.01);
+    // Towards the cup's middle, give or take, so most free starts hit.
+    const Vec3 d =
+        ((b->mesh().bounds().Center() - X0.t).normalized() + 0.3 * Vec3(n(rng), n(rng), n(rng))) *
+        0.05;
+    const bool fcl = FclCollide(fa, X0, fb, Pose::Identity());
+    const bool hit = TranslationalCcd(*a, X0, d, *b, Pose::Identity(), req_checked, &checked, &s);
+    EXPECT_EQ(checked.start_colliding, fcl) << "pose " << i;
+    if (fcl) {
+      EXPECT_FALSE(hit);
+      ++colliding;
+      continue;
+    }
+    const bool hit_plain = TranslationalCcd(*a, X0, d, *b, Pose::Identity(), req_plain, &plain, &s);
+    ASSERT_EQ(hit, hit_plain) << "pose " << i;
+    if (!hit) continue;
+    ++free_hits;
+    EXPECT_EQ(checked.toi, plain.toi);
+    EXPECT_EQ(checked.features.size(), plain.features.size());
+  }
+  // Both branches exercised (measured: about a third of the starts collide
+  // and a sixth are free and hit).
+  EXPECT_GT(colliding, count / 10) << free_hits;
+  EXPECT_GT(free_hits, count / 16) << colliding;
+  // Containment without any surface crossing is a colliding start too.
+  const ModelPtr big = MakeModel(shapes::Box(Vec3::Ones()));
+  const ModelPtr small = MakeModel(shapes::Sphere(0.2, 2));
+  const Pose inside = Pose::FromTranslation(Vec3(0.3, -0.2, 0.1));
+  EXPECT_FALSE(TranslationalCcd(*small, inside, Vec3(0.1, 0, 0), *big, Pose::Identity(),
+                                req_checked, &checked, &s));
+  EXPECT_TRUE(checked.start_colliding);
+}
+
 TEST(RigidCcd, ConservativeAdvancementStopsAtContact) {
   const ModelPtr a = MakeModel(shapes::Hammer());
   const ModelPtr b = MakeModel(shapes::Torus());
