@@ -409,7 +409,7 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     have_best = true;
     data->best_features = data->ccd.features;
   }
-  if (!have_best && A.convex() && B.convex()) {
+  if (!have_best && request.convex_shortcut && A.convex() && B.convex()) {
     // Cold start between convex polytopes: the exact answer directly (the
     // iteration below only confirms it).
     const ConvexPdtResult cr = ConvexPdt(A.mesh(), X_WA, B.mesh(), X_WB);

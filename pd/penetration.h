@@ -59,6 +59,11 @@ struct PenetrationRequest {
   double region_radius = 0;
   /// Use and update the motion-coherence cache in QueryData.
   bool use_coherence = true;
+  /// Answer pairs of convex models (GeometryModel::convex) exactly with the
+  /// separating-axis computation (pd/convex.h) instead of the general
+  /// contact-space iteration. False runs the general iteration on them too
+  /// (to compare the two, or to test the iteration on known answers).
+  bool convex_shortcut = true;
   /// Cold start (nothing usable in the coherence cache) on non-convex
   /// models: 1 = out-project along the centroid direction only; >1 = also
   /// along both bodies' principal axes (13 directions) and keep the
