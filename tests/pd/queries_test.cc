@@ -235,6 +235,58 @@ TEST(Proximity, BoxRestingOnBoxGivesUpwardNormals) {
   }
 }
 
+TEST(Proximity, EdgeOverAFlatEdgeTakesTheFaceNormal) {
+  // A box's edge, tilted 10 degrees, passes 10 um above the diagonal of
+  // another box's top face (an edge between two coplanar triangles). Their
+  // edge-edge pair is a face contact: its normal is the face's, not the
+  // edges' cross product (tilted 10 degrees, which as a contact plane would
+  // hold a PD answer at a wrong local optimum).
+  const ModelPtr b = MakeModel(shapes::Box(Vec3(0.5, 0.5, 0.5)));
+  const Mesh& mb = b->mesh();
+  Index diagonal = -1;
+  for (Index e = 0; e < static_cast<Index>(mb.edges().size()); ++e) {
+    const Edge& edge = mb.edges()[e];
+    if (edge.f[0] >= 0 && edge.f[1] >= 0 && mb.face_normals()[edge.f[0]].z() > 0.999 &&
+        mb.face_normals()[edge.f[1]].z() > 0.999) {
+      diagonal = e;
+    }
+  }
+  ASSERT_GE(diagonal, 0);
+  const Vec3 p0 = mb.vertices()[mb.edges()[diagonal].v[0]];
+  const Vec3 p1 = mb.vertices()[mb.edges()[diagonal].v[1]];
+  const Vec3 across = Vec3::UnitZ().cross(p1 - p0).normalized();  // horizontal, across it
+  const ModelPtr a = MakeModel(shapes::Box(Vec3(0.3, 0.01, 0.01)));
+  // A's long axis tilted 10 degrees up and turned across the diagonal, rolled
+  // so that one long edge is lowest; that edge's middle goes 10 um above the
+  // diagonal's middle.
+  const double tilt = 10 * M_PI / 180;
+  const Mat3 R = Eigen::Quaterniond::FromTwoVectors(
+                     Vec3::UnitX(), (std::cos(tilt) * across + std::sin(tilt) * Vec3::UnitZ()))
+                     .toRotationMatrix() *
+                 Eigen::AngleAxisd(M_PI / 5, Vec3::UnitX()).toRotationMatrix();
+  Vec3 edge_mid_A(0, 0.01, 0.01);
+  for (const double y : {-0.01, 0.01}) {
+    for (const double z : {-0.01, 0.01}) {
+      if ((R * Vec3(0, y, z)).z() < (R * edge_mid_A).z()) edge_mid_A = Vec3(0, y, z);
+    }
+  }
+  const double gap = 1e-5;
+  const Pose X_WA{R, 0.5 * (p0 + p1) + Vec3(0, 0, gap) - R * edge_mid_A};
+  QueryScratch s;
+  ProximityResult r;
+  ProximityRequest req;
+  req.tolerance = 1e-4;
+  Proximity(*a, X_WA, *b, Pose::Identity(), req, &r, &s);
+  int over_diagonal = 0;
+  for (const FeaturePair& fp : r.pairs) {
+    if (fp.type != FeatureType::kEdgeEdge || fp.b != diagonal) continue;
+    ++over_diagonal;
+    EXPECT_NEAR(fp.distance, gap * std::cos(tilt), 1e-12);  // the lines are skew
+    EXPECT_LT((fp.n_W - Vec3::UnitZ()).norm(), 1e-12) << fp.n_W.transpose();
+  }
+  EXPECT_EQ(over_diagonal, 1);
+}
+
 // --------------------------------------------------------------------------
 // FCL as oracle on random poses
 
