@@ -1,0 +1,122 @@
+// The intermediate representation (IR) the servo loop renders from
+// (../shared/docs/HAPTICS.md "Intermediate representation"), and its local
+// evaluation: unilateral contact rows, blending of a new IR over a few ticks,
+// fade to zero when the IR is stale or the proxy leaves its validity region.
+//
+// Frames: P is the proxy frame (origin at the probe's centre of mass; the
+// probe's mesh frame A sits at X_PA in it). Every vector is in the world W.
+// A contact row i is J_i = [n_i; m_i] with m_i = (p_i - c_ref) x n_i, c_ref
+// the origin of P at X_WP_ref. At a proxy pose X_WP,
+//   dx = [p - p_ref; theta u(R R_ref^T)],   depth_i(x) = d_i - J_i . dx,
+//   W(x) = sum_i k_i max(0, depth_i(x)) J_i   (force; torque about P's origin)
+// which equals the penalty wrench sum k_i d_i [n_i; m_i] at X_WP_ref.
+//
+// An IR is a fixed-size value (no heap), so it crosses threads through a
+// LatestMailbox and is copied without allocation.
+#pragma once
+
+#include <array>
+#include <cstdint>
+
+#include "device/haptic_device.h"
+
+namespace hapticpd::device {
+
+/// Most rows an IR carries; a producer keeps the deepest ones beyond this.
+inline constexpr int kMaxIrRows = 32;
+
+/// One linearised contact constraint (one contact region) at X_WP_ref.
+struct IrRow {
+  Vec3 p_W = Vec3::Zero();  ///< representative contact point at X_WP_ref
+  Vec3 n_W = Vec3::Zero();  ///< unit normal from the body towards the probe
+  Vec3 m_W = Vec3::Zero();  ///< (p_W - c_ref) x n_W
+  double depth = 0;         ///< m, >= 0 at X_WP_ref
+  double stiffness = 0;     ///< N/m
+};
+
+struct IntermediateRep {
+  std::uint64_t sequence = 0;        ///< of the proxy sample this IR answers
+  std::int64_t sample_time_ns = 0;   ///< client clock when that sample was taken
+  std::int64_t receive_time_ns = 0;  ///< client clock when the IR arrived (age is from here)
+  Pose X_WP_ref;                     ///< proxy pose the rows linearise about
+  int num_rows = 0;
+  std::array<IrRow, kMaxIrRows> rows{};
+  /// PDg: spring towards the nearest free pose instead of rows. Rendered
+  /// unilaterally along the 6-D PD direction (it never pulls the proxy back
+  /// in once the proxy has passed the target).
+  bool use_target = false;
+  Pose X_WP_target;
+  double target_stiffness = 0;             ///< N/m
+  double target_rotational_stiffness = 0;  ///< N m/rad
+  Wrench W_ref;                ///< penalty wrench at X_WP_ref (diagnostic; torque about P)
+  double validity_radius = 0;  ///< m from p_ref; <= 0: unbounded
+  double validity_angle = 0;   ///< rad from R_ref; <= 0: unbounded
+  double compute_time_us = 0;  ///< producer's PD time
+};
+
+/// Raw (unblended, unfaded) IR wrench at X_WP: W = [force; torque about P's
+/// origin] and its stiffness K = -dW/dx (6x6, symmetric positive
+/// semi-definite; the rows active at X_WP). No allocation.
+void EvaluateIrRaw(const IntermediateRep& ir, const Pose& X_WP, Vec6* W, Mat6* K);
+
+/// True when X_WP is inside the IR's validity region.
+bool InsideValidity(const IntermediateRep& ir, const Pose& X_WP);
+
+struct IrEvalParams {
+  /// A new IR's step is spread over this many ticks (VRPN uses 10).
+  int blend_ticks = 10;
+  /// An IR older than this (s, from its receive time) is stale.
+  double max_age_s = 0.020;
+  /// Time (s) for the contact wrench to fade from full to zero.
+  double fade_time_s = 0.020;
+  /// Time (s) to ramp it back from zero to full (recovery; slower, since the
+  /// proxy may have sunk into the body meanwhile: Mark et al. 1996).
+  double fade_in_time_s = 0.100;
+};
+
+/// What one evaluation did (for statistics and tests).
+struct IrEvalInfo {
+  bool have_ir = false;
+  bool stale = false;
+  bool outside_validity = false;
+  int active_rows = 0;
+  double age_s = 0;
+  double fade = 0;   ///< fade gain in [0, 1]
+  double blend = 1;  ///< progress of the current blend in [0, 1]
+};
+
+/// Renders the latest IR at the proxy pose, once per servo tick. Blending:
+/// on arrival, the jump between the wrench the old IR gave and the one the
+/// new IR gives at the current proxy pose is kept as an offset that decays
+/// to zero over `blend_ticks`, so the output is continuous even when IRs
+/// arrive faster than the blend. Fading: a gain that moves towards 0 (stale
+/// or outside validity) at 1/fade_time per second, or towards 1 at
+/// 1/fade_in_time. Not thread-safe:
+/// owned by the servo thread. No allocation after construction.
+class IrEvaluator {
+ public:
+  explicit IrEvaluator(const IrEvalParams& params = {}) : params_(params) {}
+
+  const IrEvalParams& params() const { return params_; }
+  /// Drops the IR and zeroes the fade (e.g. on disconnect).
+  void Reset();
+  /// Installs a new IR (by copy); the next Evaluate blends it in.
+  void Accept(const IntermediateRep& ir, const Pose& X_WP);
+  /// Contact wrench on the proxy at X_WP at time now_ns, its stiffness K for
+  /// the implicit step, and what happened. Advances blend and fade by `dt_s`.
+  void Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, Vec6* W, Mat6* K,
+                IrEvalInfo* info);
+  bool has_ir() const { return has_ir_; }
+  const IntermediateRep& current() const { return ir_; }
+
+ private:
+  IrEvalParams params_;
+  IntermediateRep ir_;
+  bool has_ir_ = false;
+  Vec6 last_W_ = Vec6::Zero();  // unfaded output of the last Evaluate
+  Vec6 offset_ = Vec6::Zero();  // blend offset at the IR's arrival
+  int blend_tick_ = 0;
+  double fade_ = 0;
+};
+
+}  // namespace hapticpd::device

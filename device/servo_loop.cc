@@ -1,0 +1,224 @@
+#include "device/servo_loop.h"
+
+#include <pthread.h>
+#include <sched.h>
+#include <time.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+
+#include "device/math.h"
+
+namespace hapticpd::device {
+
+std::int64_t SteadyClock::NowNs() const {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+const SteadyClock& SteadyClock::Instance() {
+  static const SteadyClock clock;
+  return clock;
+}
+
+const char* ToString(DeviceStatus s) {
+  switch (s) {
+    case DeviceStatus::kOk:
+      return "ok";
+    case DeviceStatus::kNotOpen:
+      return "not-open";
+    case DeviceStatus::kEndOfData:
+      return "end-of-data";
+    case DeviceStatus::kError:
+      return "error";
+  }
+  return "?";
+}
+
+ServoLoop::ServoLoop(HapticDevice* device, const ServoConfig& config, const Clock* clock)
+    : device_(device),
+      config_(config),
+      clock_(clock),
+      coupling_(config.coupling ? *config.coupling : ChooseCoupling(device->info(), config.design)),
+      eval_(config.ir) {}
+
+ServoLoop::~ServoLoop() { Stop(); }
+
+void ServoLoop::ClearStats() { stats_.Clear(); }
+
+void ServoLoop::ResetContact() {
+  eval_.Reset();
+  engaged_ = false;
+  quiet_count_ = 0;
+  startup_gain_ = 0;
+}
+
+void ServoLoop::Tick(std::int64_t now_ns) {
+  const std::int64_t t_begin = SteadyClock::Instance().NowNs();
+  const double h = config_.period_s;
+  TickRecord& r = rec_;
+  r.tick = stats_.ticks + 1;
+  r.time_ns = now_ns;
+  r.new_ir = false;
+
+  // Period statistics (from the loop's own clock).
+  double dt = h;
+  if (stats_.ticks > 0) {
+    dt = 1e-9 * static_cast<double>(now_ns - last_tick_ns_);
+    stats_.period_us.Add(dt * 1e6);
+    if (dt > 1.5 * h) {
+      ++stats_.late_ticks;
+      live_.late_ticks.fetch_add(1, std::memory_order_relaxed);
+    }
+  }
+  last_tick_ns_ = now_ns;
+
+  r.device_status = device_->Read(&r.state);
+  if (r.device_status != DeviceStatus::kOk && r.device_status != DeviceStatus::kEndOfData) {
+    ++stats_.device_errors;
+    r.F_cmd_D = Wrench{};
+    r.F_cmd_W = Wrench{};
+    device_->Command(r.F_cmd_D);
+    ++stats_.ticks;
+    return;
+  }
+  const Mat3& R_WD = config_.X_WD.R;
+  r.X_WH = config_.X_WD * r.state.X_DH;
+  const Vec3 v_WH = R_WD * r.state.v_DH_D;
+  const Vec3 w_WH = R_WD * r.state.w_DH_D;
+  if (!proxy_init_) {
+    proxy_.X_WP = r.X_WH;
+    proxy_.v_W = v_WH;
+    proxy_.w_W = w_WH;
+    proxy_init_ = true;
+  }
+
+  if (ir_in_.Fetch()) {
+    eval_.Accept(ir_in_.front(), proxy_.X_WP);
+    r.new_ir = true;
+    ++stats_.ir_updates;
+    live_.ir_updates.fetch_add(1, std::memory_order_relaxed);
+  }
+  Mat6 K_ir;
+  eval_.Evaluate(proxy_.X_WP, now_ns, h, &r.W_ir, &K_ir, &r.ir);
+  if (r.ir.have_ir) {
+    stats_.ir_age_ms.Add(r.ir.age_s * 1e3);
+    if (r.ir.stale) ++stats_.stale_ticks;
+    if (r.ir.outside_validity) ++stats_.outside_ticks;
+  }
+
+  StepProxy(coupling_, r.X_WH, v_WH, w_WH, r.W_ir, K_ir, h, &proxy_);
+  r.proxy = proxy_;
+  r.W_coupling = CouplingWrench(coupling_.gains, r.X_WH, v_WH, w_WH, proxy_, &r.clamped);
+  if (r.clamped) ++stats_.clamped_ticks;
+
+  // Start-up safety: engage once the would-be command has been quiet.
+  const StartupParams& su = config_.startup;
+  if (!engaged_) {
+    const bool quiet =
+        r.W_coupling.force.norm() < su.quiet_force &&
+        (coupling_.gains.max_torque <= 0 || r.W_coupling.torque.norm() < su.quiet_torque);
+    quiet_count_ = quiet ? quiet_count_ + 1 : 0;
+    if (quiet_count_ >= su.quiet_ticks) engaged_ = true;
+  } else {
+    startup_gain_ = su.ramp_time_s > 0 ? std::min(1.0, startup_gain_ + h / su.ramp_time_s) : 1.0;
+  }
+  r.startup_gain = startup_gain_;
+
+  r.F_cmd_W.force =
+      internal::ClampNorm(-startup_gain_ * r.W_coupling.force, coupling_.gains.max_force);
+  r.F_cmd_W.torque =
+      internal::ClampNorm(-startup_gain_ * r.W_coupling.torque, coupling_.gains.max_torque);
+  r.F_cmd_D.force = R_WD.transpose() * r.F_cmd_W.force;
+  r.F_cmd_D.torque = R_WD.transpose() * r.F_cmd_W.torque;
+  if (device_->Command(r.F_cmd_D) != DeviceStatus::kOk) ++stats_.device_errors;
+
+  // Force statistics and energy into the hand. The wrench of the previous
+  // tick was held over the interval that just ended; its work is estimated
+  // with the mean of the velocities at both ends.
+  const double F = r.F_cmd_W.force.norm();
+  const double T = r.F_cmd_W.torque.norm();
+  stats_.max_force = std::max(stats_.max_force, F);
+  stats_.max_torque = std::max(stats_.max_torque, T);
+  if (stats_.ticks > 0) {
+    stats_.max_dforce = std::max(stats_.max_dforce, (r.F_cmd_W.force - last_cmd_W_.force).norm());
+    stats_.max_dtorque =
+        std::max(stats_.max_dtorque, (r.F_cmd_W.torque - last_cmd_W_.torque).norm());
+    stats_.energy_into_hand_j += dt * (last_cmd_W_.force.dot(0.5 * (v_WH + last_v_W_)) +
+                                       last_cmd_W_.torque.dot(0.5 * (w_WH + last_w_W_)));
+    stats_.passivity_min_j = std::min(stats_.passivity_min_j, -stats_.energy_into_hand_j);
+  }
+  last_cmd_W_ = r.F_cmd_W;
+  last_v_W_ = v_WH;
+  last_w_W_ = w_WH;
+  live_.last_force.store(F, std::memory_order_relaxed);
+
+  ProxySample& s = proxy_out_.back();
+  s.sequence = stats_.ticks + 1;
+  s.time_ns = now_ns;
+  s.X_WP = proxy_.X_WP;
+  s.X_WA = proxy_.X_WP * config_.X_PA;
+  s.v_W = proxy_.v_W;
+  s.w_W = proxy_.w_W;
+  s.X_WH = r.X_WH;
+  s.F_cmd_W = r.F_cmd_W;
+  proxy_out_.Publish();
+
+  ++stats_.ticks;
+  live_.ticks.store(stats_.ticks, std::memory_order_relaxed);
+  stats_.compute_us.Add(1e-3 * static_cast<double>(SteadyClock::Instance().NowNs() - t_begin));
+}
+
+void ServoLoop::Start() {
+  if (thread_.joinable()) return;
+  thread_ = std::jthread([this](std::stop_token st) { Run(st); });
+}
+
+void ServoLoop::Stop() {
+  if (!thread_.joinable()) return;
+  thread_.request_stop();
+  thread_.join();
+  thread_ = std::jthread();
+}
+
+namespace {
+timespec ToTimespec(std::int64_t ns) {
+  timespec ts;
+  ts.tv_sec = static_cast<time_t>(ns / 1'000'000'000);
+  ts.tv_nsec = static_cast<long>(ns % 1'000'000'000);
+  return ts;
+}
+}  // namespace
+
+void ServoLoop::Run(std::stop_token st) {
+  if (config_.realtime_priority > 0) {
+    sched_param sp{};
+    sp.sched_priority = config_.realtime_priority;
+    got_rt_.store(pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) == 0);
+  }
+  const auto period = static_cast<std::int64_t>(config_.period_s * 1e9);
+  const auto spin = static_cast<std::int64_t>(config_.spin_s * 1e9);
+  // The deadlines are on CLOCK_MONOTONIC, the clock SteadyClock reads; a
+  // custom clock only timestamps the ticks.
+  const SteadyClock& mono = SteadyClock::Instance();
+  std::int64_t deadline = mono.NowNs() + period;
+  while (!st.stop_requested()) {
+    const timespec wake = ToTimespec(deadline - spin);
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &wake, nullptr) == EINTR) {
+    }
+    while (mono.NowNs() < deadline) {
+    }
+    Tick(clock_ == &mono ? mono.NowNs() : clock_->NowNs());
+    deadline += period;
+    // Fell behind by more than a few periods (debugger, suspend): resync
+    // rather than firing a burst of catch-up ticks.
+    const std::int64_t now = mono.NowNs();
+    if (now > deadline + 5 * period) deadline = now + period;
+  }
+  device_->Command(Wrench{});
+}
+
+}  // namespace hapticpd::device

@@ -1,0 +1,156 @@
+// The 1 kHz servo loop (../shared/docs/HAPTICS.md): per tick, read the
+// device, render the latest IR at the proxy, integrate the proxy under the IR
+// wrench and the virtual coupling, command minus the coupling wrench clamped
+// to the device's limits, publish the proxy pose. The tick never allocates,
+// locks or logs; IRs come in and proxy poses go out through LatestMailboxes,
+// so the producer (a network Session, or LocalPdIrSource) runs on its own
+// thread at its own pace.
+//
+// Two ways to run it: Tick(now_ns) steps it once (tests drive it with a
+// ManualClock, so nothing depends on wall time), and Start()/Stop() run it on
+// its own thread at absolute deadlines (clock_nanosleep TIMER_ABSTIME on
+// CLOCK_MONOTONIC, then a short spin).
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <optional>
+#include <thread>
+
+#include "device/coupling.h"
+#include "device/haptic_device.h"
+#include "device/ir.h"
+#include "device/mailbox.h"
+#include "device/stats.h"
+
+namespace hapticpd::device {
+
+/// The proxy pose the loop publishes every tick (what a Session sends to the
+/// server as a ProbePose, and what LocalPdIrSource computes PD for).
+struct ProxySample {
+  std::uint64_t sequence = 0;  ///< tick number, strictly increasing from 1
+  std::int64_t time_ns = 0;    ///< loop clock at the tick
+  Pose X_WP;                   ///< proxy (centre-of-mass) frame
+  Pose X_WA;                   ///< probe mesh frame: X_WP * X_PA
+  Vec3 v_W = Vec3::Zero();
+  Vec3 w_W = Vec3::Zero();
+  Pose X_WH;       ///< the device handle, for observers
+  Wrench F_cmd_W;  ///< wrench commanded on the handle this tick (W)
+};
+
+using IrMailbox = LatestMailbox<IntermediateRep>;
+using ProxyMailbox = LatestMailbox<ProxySample>;
+
+/// CHAI3D's start-up safety: output stays zero until the would-be command has
+/// been small for `quiet_ticks` ticks in a row, then ramps up linearly.
+struct StartupParams {
+  double quiet_force = 0.5;    ///< N
+  double quiet_torque = 0.02;  ///< N m
+  int quiet_ticks = 20;
+  double ramp_time_s = 0.2;
+};
+
+struct ServoConfig {
+  double period_s = 0.001;
+  /// Coupling gains and proxy; when unset, ChooseCoupling(device.info(), design).
+  std::optional<Coupling> coupling;
+  CouplingDesign design;
+  IrEvalParams ir;
+  StartupParams startup;
+  Pose X_WD;  ///< device base frame in the world
+  Pose X_PA;  ///< probe mesh frame A in the proxy frame P (P: at the probe's centre of mass)
+  /// Real-time runner: spin this long before each deadline (after sleeping).
+  double spin_s = 50e-6;
+  /// Real-time runner: try SCHED_FIFO at this priority (0: do not try).
+  int realtime_priority = 80;
+};
+
+/// Everything one tick saw and did (for tests, traces and the recorder).
+struct TickRecord {
+  std::uint64_t tick = 0;
+  std::int64_t time_ns = 0;
+  DeviceStatus device_status = DeviceStatus::kNotOpen;
+  DeviceState state;
+  Pose X_WH;
+  ProxyState proxy;          ///< after the step
+  Vec6 W_ir = Vec6::Zero();  ///< contact wrench on the proxy (W, about P)
+  Wrench W_coupling;         ///< coupling wrench on the proxy after the step
+  Wrench F_cmd_W;            ///< commanded on the handle, W
+  Wrench F_cmd_D;            ///< commanded on the handle, D
+  IrEvalInfo ir;
+  bool new_ir = false;
+  double startup_gain = 0;
+  bool clamped = false;
+};
+
+/// Counters other threads may read while the loop runs.
+struct LiveCounters {
+  std::atomic<std::uint64_t> ticks{0};
+  std::atomic<std::uint64_t> late_ticks{0};
+  std::atomic<std::uint64_t> ir_updates{0};
+  std::atomic<double> last_force{0};
+};
+
+class ServoLoop {
+ public:
+  /// `device` must be open and outlive the loop; `clock` is the time base
+  /// for the real-time runner and IR ages (tests pass a ManualClock and call
+  /// Tick themselves).
+  ServoLoop(HapticDevice* device, const ServoConfig& config,
+            const Clock* clock = &SteadyClock::Instance());
+  ~ServoLoop();
+  ServoLoop(const ServoLoop&) = delete;
+  ServoLoop& operator=(const ServoLoop&) = delete;
+
+  /// Where IRs go in (one writer: the Session or LocalPdIrSource thread).
+  IrMailbox& ir_mailbox() { return ir_in_; }
+  /// Where proxy poses come out (one reader).
+  ProxyMailbox& proxy_mailbox() { return proxy_out_; }
+
+  /// One servo tick at time now_ns. No allocation, lock or logging.
+  void Tick(std::int64_t now_ns);
+
+  /// Runs Tick on a dedicated thread at absolute deadlines until Stop().
+  void Start();
+  void Stop();
+  bool running() const { return thread_.joinable(); }
+  /// Whether the real-time thread obtained SCHED_FIFO.
+  bool got_realtime_priority() const { return got_rt_.load(); }
+
+  /// Owned by the servo thread: read after Stop(), or between Tick calls.
+  const ServoStats& stats() const { return stats_; }
+  void ClearStats();
+  const TickRecord& last_tick() const { return rec_; }
+  const LiveCounters& live() const { return live_; }
+  const Coupling& coupling() const { return coupling_; }
+  const ServoConfig& config() const { return config_; }
+  /// Forget the IR and re-arm the start-up ramp (e.g. after a reconnect).
+  void ResetContact();
+
+ private:
+  void Run(std::stop_token st);
+
+  HapticDevice* device_;
+  ServoConfig config_;
+  const Clock* clock_;
+  Coupling coupling_;
+  IrEvaluator eval_;
+  IrMailbox ir_in_;
+  ProxyMailbox proxy_out_;
+  ServoStats stats_;
+  LiveCounters live_;
+  TickRecord rec_;
+  ProxyState proxy_;
+  bool proxy_init_ = false;
+  std::int64_t last_tick_ns_ = 0;
+  Wrench last_cmd_W_;
+  Vec3 last_v_W_ = Vec3::Zero();
+  Vec3 last_w_W_ = Vec3::Zero();
+  int quiet_count_ = 0;
+  double startup_gain_ = 0;
+  bool engaged_ = false;
+  std::jthread thread_;
+  std::atomic<bool> got_rt_{false};
+};
+
+}  // namespace hapticpd::device

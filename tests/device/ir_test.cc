@@ -1,0 +1,180 @@
+// IR evaluation: unilateral rows, their stiffness, blending of a new IR, fade
+// on staleness and outside the validity region, the PDg target spring.
+#include "device/ir.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+namespace hapticpd::device {
+namespace {
+
+constexpr std::int64_t kMs = 1'000'000;
+
+IntermediateRep FloorIr(double depth, double k, std::int64_t receive_ns = 0) {
+  IntermediateRep ir;
+  ir.X_WP_ref = Pose::FromTranslation(Vec3(0, 0, 0.1));
+  ir.num_rows = 1;
+  // A contact 1 cm to the +x side of the centre, pushing up.
+  ir.rows[0].p_W = Vec3(0.01, 0, 0.09);
+  ir.rows[0].n_W = Vec3::UnitZ();
+  ir.rows[0].m_W = (ir.rows[0].p_W - ir.X_WP_ref.t).cross(ir.rows[0].n_W);
+  ir.rows[0].depth = depth;
+  ir.rows[0].stiffness = k;
+  ir.receive_time_ns = receive_ns;
+  ir.validity_radius = 0.01;
+  ir.validity_angle = 0.5;
+  return ir;
+}
+
+TEST(IrEval, RowPushesAlongNormalWithLinearisedDepth) {
+  const IntermediateRep ir = FloorIr(0.002, 1000);
+  Vec6 W;
+  Mat6 K;
+  EvaluateIrRaw(ir, ir.X_WP_ref, &W, &K);
+  EXPECT_NEAR(W(2), 2.0, 1e-12);    // k d along +z
+  EXPECT_NEAR(W(4), -0.02, 1e-12);  // (r x n) k d: r = +x, n = +z -> -y
+  EXPECT_NEAR(K(2, 2), 1000, 1e-9);
+  // 1 mm further down: 3 mm deep.
+  EvaluateIrRaw(ir, Pose::FromTranslation(Vec3(0, 0, 0.099)), &W, &K);
+  EXPECT_NEAR(W(2), 3.0, 1e-9);
+  // A small rotation lifting the contact point (+x side up: about -y) reduces its depth.
+  Pose X = ir.X_WP_ref;
+  X.R = Eigen::AngleAxisd(0.05, -Vec3::UnitY()).toRotationMatrix();
+  EvaluateIrRaw(ir, X, &W, &K);
+  EXPECT_NEAR(W(2), 1000 * (0.002 - 0.01 * 0.05), 1e-6);
+}
+
+TEST(IrEval, UnilateralRowStopsPushingWhenSeparated) {
+  const IntermediateRep ir = FloorIr(0.002, 1000);
+  Vec6 W;
+  Mat6 K;
+  EvaluateIrRaw(ir, Pose::FromTranslation(Vec3(0, 0, 0.1025)), &W, &K);  // 0.5 mm above
+  EXPECT_EQ(W.norm(), 0.0);
+  EXPECT_EQ(K.norm(), 0.0);
+}
+
+TEST(IrEval, NewIrIsBlendedOverBlendTicks) {
+  IrEvalParams p;
+  p.blend_ticks = 10;
+  p.max_age_s = 1;  // never stale here
+  p.fade_in_time_s = 0.02;
+  IrEvaluator ev(p);
+  const Pose X = Pose::FromTranslation(Vec3(0, 0, 0.1));
+  ev.Accept(FloorIr(0.001, 1000, 0), X);
+  Vec6 W;
+  Mat6 K;
+  IrEvalInfo info;
+  for (int i = 0; i < 40; ++i) ev.Evaluate(X, i * kMs, 1e-3, &W, &K, &info);  // settled, faded in
+  ASSERT_NEAR(W(2), 1.0, 1e-9);
+  ev.Accept(FloorIr(0.003, 1000, 40 * kMs), X);  // a step from 1 N to 3 N
+  double prev = W(2);
+  for (int i = 1; i <= 10; ++i) {
+    ev.Evaluate(X, (40 + i) * kMs, 1e-3, &W, &K, &info);
+    EXPECT_NEAR(W(2) - prev, 0.2, 1e-9) << "tick " << i;  // 2 N over 10 ticks
+    prev = W(2);
+  }
+  ev.Evaluate(X, 51 * kMs, 1e-3, &W, &K, &info);
+  EXPECT_NEAR(W(2), 3.0, 1e-9);
+}
+
+TEST(IrEval, BlendStaysContinuousWhenIrsArriveEveryTick) {
+  IrEvalParams p;
+  p.max_age_s = 1;  // never stale here
+  IrEvaluator ev(p);
+  const Pose X = Pose::FromTranslation(Vec3(0, 0, 0.1));
+  Vec6 W;
+  Mat6 K;
+  IrEvalInfo info;
+  ev.Accept(FloorIr(0.001, 1000, 0), X);
+  for (int i = 0; i < 40; ++i) ev.Evaluate(X, i * kMs, 1e-3, &W, &K, &info);
+  double prev = W(2), max_step = 0;
+  // Depth alternates 1 mm / 3 mm every tick: the output never jumps by the full 2 N.
+  for (int i = 0; i < 50; ++i) {
+    ev.Accept(FloorIr(i % 2 ? 0.001 : 0.003, 1000, (40 + i) * kMs), X);
+    ev.Evaluate(X, (40 + i) * kMs, 1e-3, &W, &K, &info);
+    max_step = std::max(max_step, std::abs(W(2) - prev));
+    prev = W(2);
+  }
+  EXPECT_LE(max_step, 0.2 + 1e-9);
+}
+
+TEST(IrEval, StaleIrFadesToZeroAndRecovers) {
+  IrEvalParams p;
+  p.max_age_s = 0.025;
+  p.fade_time_s = 0.020;
+  p.fade_in_time_s = 0.020;
+  IrEvaluator ev(p);
+  const Pose X = Pose::FromTranslation(Vec3(0, 0, 0.1));
+  ev.Accept(FloorIr(0.002, 1000, 0), X);
+  Vec6 W;
+  Mat6 K;
+  IrEvalInfo info;
+  // Fade-in from the first IR: linear over 20 ms.
+  ev.Evaluate(X, 1 * kMs, 1e-3, &W, &K, &info);
+  EXPECT_NEAR(info.fade, 0.05, 1e-12);
+  for (int i = 2; i <= 25; ++i) ev.Evaluate(X, i * kMs, 1e-3, &W, &K, &info);
+  EXPECT_NEAR(W(2), 2.0, 1e-9);
+  EXPECT_FALSE(info.stale);
+  // No new IR: stale after 25 ms, then 20 ms to zero, never a step above 1/20.
+  double prev = W(2);
+  int zero_at = -1;
+  for (int i = 26; i <= 80; ++i) {
+    ev.Evaluate(X, i * kMs, 1e-3, &W, &K, &info);
+    EXPECT_LE(std::abs(W(2) - prev), 2.0 / 20 + 1e-9);
+    prev = W(2);
+    if (zero_at < 0 && W(2) == 0) zero_at = i;
+  }
+  EXPECT_TRUE(info.stale);
+  EXPECT_EQ(zero_at, 45);  // stale (age > 25 ms) from 26 ms: 0.95 there, 0 twenty ticks later
+  // A fresh IR ramps back in over the fade time.
+  ev.Accept(FloorIr(0.002, 1000, 80 * kMs), X);
+  ev.Evaluate(X, 81 * kMs, 1e-3, &W, &K, &info);
+  EXPECT_NEAR(W(2), 0.1, 1e-9);
+  for (int i = 82; i <= 100; ++i) ev.Evaluate(X, i * kMs, 1e-3, &W, &K, &info);
+  EXPECT_NEAR(W(2), 2.0, 1e-9);
+}
+
+TEST(IrEval, LeavingTheValidityRegionFades) {
+  IrEvalParams p;
+  p.fade_in_time_s = 0.020;
+  IrEvaluator ev(p);
+  Vec6 W;
+  Mat6 K;
+  IrEvalInfo info;
+  const IntermediateRep ir = FloorIr(0.02, 1000, 0);
+  ev.Accept(ir, ir.X_WP_ref);
+  for (int i = 1; i <= 20; ++i) ev.Evaluate(ir.X_WP_ref, 0, 1e-3, &W, &K, &info);
+  ASSERT_GT(W(2), 19.0);
+  const Pose far = Pose::FromTranslation(Vec3(0.02, 0, 0.1));  // 2 cm sideways > 1 cm radius
+  for (int i = 21; i <= 41; ++i) {
+    ev.Evaluate(far, 0, 1e-3, &W, &K, &info);
+    EXPECT_TRUE(info.outside_validity);
+    EXPECT_FALSE(info.stale);
+  }
+  EXPECT_EQ(W.norm(), 0.0);
+  Pose turned = ir.X_WP_ref;  // 0.6 rad > 0.5 rad validity angle
+  turned.R = Eigen::AngleAxisd(0.6, Vec3::UnitZ()).toRotationMatrix();
+  EXPECT_FALSE(InsideValidity(ir, turned));
+  EXPECT_TRUE(InsideValidity(ir, ir.X_WP_ref));
+}
+
+TEST(IrEval, TargetSpringIsUnilateralAlongThePdDirection) {
+  IntermediateRep ir;
+  ir.use_target = true;
+  ir.X_WP_ref = Pose::FromTranslation(Vec3(0, 0, 0));
+  ir.X_WP_target = Pose::FromTranslation(Vec3(0, 0, 0.004));
+  ir.target_stiffness = 500;
+  ir.target_rotational_stiffness = 0.05;
+  Vec6 W;
+  Mat6 K;
+  EvaluateIrRaw(ir, ir.X_WP_ref, &W, &K);
+  EXPECT_NEAR(W(2), 2.0, 1e-12);
+  EvaluateIrRaw(ir, Pose::FromTranslation(Vec3(0, 0, 0.003)), &W, &K);
+  EXPECT_NEAR(W(2), 0.5, 1e-9);
+  EvaluateIrRaw(ir, Pose::FromTranslation(Vec3(0, 0, 0.005)), &W, &K);  // past the target
+  EXPECT_EQ(W.norm(), 0.0);
+}
+
+}  // namespace
+}  // namespace hapticpd::device

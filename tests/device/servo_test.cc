@@ -1,0 +1,255 @@
+// The servo loop closed through the simulated hand and an in-process PDt
+// source, in simulated time: press, slide, plate, closed-loop energy, a
+// stalled IR stream, the start-up ramp, no allocation in the tick, and the
+// recorder / replay round trip.
+#include "device/servo_loop.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include "device/replay_device.h"
+#include "tests/alloc_counter.h"
+#include "tests/device/rig.h"
+
+namespace hapticpd::device {
+namespace {
+
+using testing::BoxScene;
+using testing::CubeProbe;
+using testing::kBoxTop;
+using testing::kProbeHalf;
+using testing::Rig;
+using testing::StartAbove;
+
+ScriptParams Script(HandScript s, double duration = 3) {
+  ScriptParams p;
+  p.script = s;
+  p.X_DS = StartAbove(kBoxTop, 0.005);
+  p.duration_s = duration;
+  return p;
+}
+
+TEST(Servo, PressPushesOutAndGrowsWithDepth) {
+  Rig rig(Script(HandScript::kPress), CubeProbe(), BoxScene());
+  double max_fz = 0, min_fz = 0;
+  std::vector<std::pair<double, double>> down;  // (handle depth, force) on the way down
+  rig.Run(3.2, [&](const TickRecord& r) {
+    const double fz = r.F_cmd_W.force.z();  // on the hand: +z pushes out of the box
+    max_fz = std::max(max_fz, fz);
+    min_fz = std::min(min_fz, fz);
+    const double depth = kBoxTop - (r.X_WH.t.z() - kProbeHalf);
+    if (rig.time_s() < 1.3 && depth > 0.0005) down.emplace_back(depth, fz);
+    // Never pulls the hand into the surface, never sideways.
+    EXPECT_LT(std::hypot(r.F_cmd_W.force.x(), r.F_cmd_W.force.y()), 0.05);
+  });
+  EXPECT_GT(max_fz, 2.0);
+  // The coupling damper may tug lightly while the hand lifts off quickly.
+  EXPECT_GT(min_fz, -0.2);
+  ASSERT_GT(down.size(), 100u);
+  // Force grows with depth (mean force per 0.5 mm bin of handle depth; the
+  // hand bounces a little on impact, so tick-to-tick it is not monotone)
+  // and is about the series stiffness of coupling and contact.
+  std::vector<double> sum(64, 0), n(64, 0);
+  for (const auto& [d, f] : down) {
+    const auto b = static_cast<std::size_t>(d / 0.0005);
+    if (b < sum.size()) sum[b] += f, n[b] += 1;
+  }
+  int bins = 0;
+  double prev = -1;
+  for (std::size_t b = 0; b < sum.size(); ++b) {
+    if (n[b] < 5) continue;
+    EXPECT_GT(sum[b] / n[b], prev) << "depth bin " << b;
+    prev = sum[b] / n[b];
+    ++bins;
+  }
+  EXPECT_GE(bins, 5);
+  const double k_l = rig.loop->coupling().gains.k_lin, k_c = 5000;
+  const auto& [d, f] = down.back();
+  EXPECT_NEAR(f / d, k_l * k_c / (k_l + k_c), 0.2 * k_l);
+  EXPECT_EQ(rig.loop->stats().device_errors, 0u);
+}
+
+TEST(Servo, SlideKeepsContactWithoutPopThrough) {
+  Rig rig(Script(HandScript::kSlide, 4), CubeProbe(), BoxScene());
+  int contact_ticks = 0, lost = 0;
+  const double k_c = 5000, fmax = rig.device->info().max_force;
+  rig.Run(4, [&](const TickRecord& r) {
+    const double t = rig.time_s();
+    // The proxy never sinks deeper than the largest force the coupling can
+    // apply allows (F_max / k_c), plus a millimetre for blending lag.
+    EXPECT_GT(r.proxy.X_WP.t.z() - kProbeHalf, kBoxTop - fmax / k_c - 0.001);
+    if (t > 1.2 && t < 3.0) {  // pressed and sliding sideways
+      if (r.F_cmd_W.force.z() > 0.5)
+        ++contact_ticks;
+      else
+        ++lost;
+    }
+  });
+  EXPECT_GT(contact_ticks, 1700);
+  EXPECT_EQ(lost, 0);
+  EXPECT_GT(rig.loop->last_tick().X_WH.t.x(), 0.03);  // it did slide
+}
+
+TEST(Servo, PlateForceNeverFlipsInside) {
+  // A 4 mm plate (thinner than F_max / k_l = 12 mm) with a stiff surface;
+  // the hand goes 4 cm down, far through it.
+  pd::Material m;
+  m.stiffness = 20000;
+  std::vector<pd::SceneBody> plate = {
+      {pd::MakeModel(pd::shapes::ThinPlate(0.2, 0.2, 0.004)), Pose::Identity(), m}};
+  ScriptParams sp = Script(HandScript::kPlate);
+  sp.X_DS = StartAbove(0.002, 0.005);
+  sp.travel = 0.04;
+  Rig rig(sp, CubeProbe(), plate);
+  double max_fz = 0;
+  int below = 0;
+  rig.Run(3.2, [&](const TickRecord& r) {
+    const double fz = r.F_cmd_W.force.z();
+    max_fz = std::max(max_fz, fz);
+    if (r.X_WH.t.z() - kProbeHalf < -0.002) {  // handle bottom under the plate's bottom face
+      ++below;
+      EXPECT_GT(fz, -1e-6) << "force flipped at t=" << rig.time_s();
+    }
+    EXPECT_GT(r.proxy.X_WP.t.z(), 0.0);  // the proxy's centre stays above the mid-plane
+  });
+  EXPECT_GT(below, 300);  // the handle went through the plate
+  EXPECT_GT(max_fz, 5.0);
+}
+
+TEST(Servo, ClosedLoopInStaticScenePutsAtMostEpsilonIntoTheHand) {
+  for (HandScript s : {HandScript::kLoop, HandScript::kPress, HandScript::kCircle}) {
+    SCOPED_TRACE(ToString(s));
+    ScriptParams sp = Script(s);
+    sp.radius = 0.01;
+    Rig rig(sp, CubeProbe(), BoxScene());
+    rig.Run(3.5);
+    EXPECT_GT(rig.loop->stats().max_force, 1.0);        // it touched
+    EXPECT_LT(rig.device->energy_into_hand_j(), 1e-3);  // J
+    EXPECT_GT(rig.loop->stats().passivity_min_j, -1e-3);
+  }
+}
+
+TEST(Servo, StalledIrStreamFadesAndRecovers) {
+  // Hold the probe pressed (press script frozen at its deepest), stall the
+  // PD source for 200 ms.
+  // (4 s press: deepest and still from 1.8 s to 2.2 s.)
+  ScriptParams sp = Script(HandScript::kPress, 4);
+  Rig rig(sp, CubeProbe(), BoxScene());
+  auto stalled = [](double t) { return t > 1.85 && t <= 2.05; };
+  double before = 0, max_df = 0, prev = 0;
+  double at_50ms = 1e9, ir_at_50ms = 1e9, at_100ms = 1e9, after = 0;
+  rig.Run(
+      2.2,
+      [&](const TickRecord& r) {
+        const double t = rig.time_s(), fz = r.F_cmd_W.force.z();
+        if (std::abs(t - 1.85) < 5e-4) before = fz;
+        if (std::abs(t - 1.901) < 5e-4) at_50ms = fz, ir_at_50ms = r.W_ir.norm();
+        if (std::abs(t - 1.951) < 5e-4) at_100ms = fz;
+        if (std::abs(t - 2.19) < 5e-4) after = fz;
+        if (t > 1.5) max_df = std::max(max_df, std::abs(fz - prev));
+        prev = fz;
+      },
+      stalled);
+  EXPECT_GT(before, 2.0);
+  // The contact wrench is gone 50 ms after the last answer; what the hand
+  // still feels is the proxy following the handle as it sinks (damper drag).
+  EXPECT_EQ(ir_at_50ms, 0.0);
+  EXPECT_LT(at_50ms, 0.3 * before);
+  EXPECT_LT(at_100ms, 0.15 * before);
+  // Recovered: contact is back (stronger: the hand sank deeper meanwhile),
+  // ramped in over 100 ms rather than as a step of several newtons.
+  EXPECT_GT(after, 0.75 * before);
+  EXPECT_LE(after, rig.device->info().max_force + 1e-9);
+  EXPECT_LT(max_df, 1.0);
+  EXPECT_GT(rig.loop->stats().stale_ticks, 100u);
+}
+
+TEST(Servo, StartupWaitsForQuietThenRamps) {
+  // Start with the handle 5 mm inside the box: the proxy is put at the
+  // handle and pushed out, and nothing is sent until things are quiet.
+  ScriptParams sp = Script(HandScript::kHold);
+  sp.X_DS = StartAbove(kBoxTop, -0.005);
+  Rig rig(sp, CubeProbe(), BoxScene());
+  double max_df = 0, prev = 0;
+  rig.Run(1.0, [&](const TickRecord& r) {
+    max_df = std::max(max_df, (r.F_cmd_W.force.norm() - prev));
+    prev = r.F_cmd_W.force.norm();
+    if (rig.time_s() < 0.015) {
+      EXPECT_EQ(r.startup_gain, 0.0);
+      EXPECT_EQ(r.F_cmd_W.force.norm(), 0.0);
+    }
+  });
+  EXPECT_LT(max_df, 0.2);
+}
+
+TEST(Servo, TickDoesNotAllocate) {
+  if (!hapticpd::testing::CountAllocations::Available()) GTEST_SKIP() << "sanitizer build";
+  Rig rig(Script(HandScript::kSlide, 2), CubeProbe(), BoxScene());
+  rig.Run(0.9);  // warm up, into contact
+  std::size_t allocations = 0;
+  for (int i = 0; i < 500; ++i) {
+    rig.clock.Set((++rig.tick) * 1'000'000);
+    {
+      hapticpd::testing::CountAllocations count;
+      rig.loop->Tick(rig.clock.NowNs());
+      allocations += count.count();
+    }
+    rig.source->Pump(rig.loop.get(), rig.clock.NowNs());
+  }
+  EXPECT_GT(rig.loop->stats().ir_updates, 800u);
+  EXPECT_EQ(allocations, 0u);
+}
+
+TEST(Recorder, RecordThenReplayReproducesTheTrajectory) {
+  ManualClock clock;
+  ScriptParams sp = Script(HandScript::kTwist, 1);
+  SimulatedDevice sim(sp, &clock);
+  RecordingDevice rec(&sim, 2000);
+  rec.Open();
+  ServoLoop loop(&rec, ServoConfig{}, &clock);
+  for (int i = 1; i <= 1000; ++i) {
+    clock.Set(i * 1'000'000LL);
+    loop.Tick(clock.NowNs());
+  }
+  const auto path = std::filesystem::temp_directory_path() / "hapticpd_recorder_test.csv";
+  rec.Save(path);
+  ManualClock clock2;
+  ReplayDevice replay(path, &clock2);
+  replay.Open();
+  ASSERT_EQ(rec.samples().size(), 1000u);
+  for (std::size_t i = 0; i < 1000; i += 37) {
+    clock2.Set(std::llround(rec.samples()[i].t_s * 1e9));
+    DeviceState s;
+    ASSERT_NE(replay.Read(&s), DeviceStatus::kError);
+    EXPECT_LT((s.X_DH.t - rec.samples()[i].state.X_DH.t).norm(), 1e-8);
+    EXPECT_LT(Quat(s.X_DH.R).angularDistance(Quat(rec.samples()[i].state.X_DH.R)), 1e-6);
+  }
+  clock2.Set(5'000'000'000LL);
+  DeviceState s;
+  EXPECT_EQ(replay.Read(&s), DeviceStatus::kEndOfData);
+  std::filesystem::remove(path);
+}
+
+TEST(Recorder, MalformedCsvNamesFileAndLine) {
+  const auto path = std::filesystem::temp_directory_path() / "hapticpd_bad_traj.csv";
+  {
+    std::ofstream f(path);
+    f << "# hapticpd device trajectory v1\n"
+         "t_s,px,py,pz,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,buttons,fx,fy,fz,tx,ty,tz\n"
+         "0,0,0,0,1,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0\n"
+         "0.001,0,0,nan,1,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0\n";
+  }
+  try {
+    LoadTrajectoryCsv(path);
+    ADD_FAILURE() << "no error";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find(":4: column 4"), std::string::npos) << e.what();
+  }
+  std::filesystem::remove(path);
+}
+
+}  // namespace
+}  // namespace hapticpd::device
