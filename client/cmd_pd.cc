@@ -1,6 +1,7 @@
-// `hapticpd pd --probe A --scene B [--scene C ...] --pose "..."`: penetration
-// depth of a probe against one or more scene bodies, one PD query per body,
-// and the combined penalty wrench on the probe.
+// `hapticpd pd --probe A --scene B [--scene C ...] --pose "..." [--mode pdt|pdg]`:
+// penetration depth of a probe against one or more scene bodies, one PD query
+// per body, and the combined wrench on the probe (penalty wrench for PDt,
+// spring to the answer pose for PDg).
 #include <nlohmann/json.hpp>
 
 #include <array>
@@ -18,6 +19,7 @@
 #include "pd/geometry_model.h"
 #include "pd/material.h"
 #include "pd/mesh.h"
+#include "pd/pdg.h"
 #include "pd/pdt.h"
 #include "pd/penetration.h"
 #include "pd/shapes.h"
@@ -38,6 +40,7 @@ struct PdOptions {
   // Numbers are parsed here rather than by CLI11 so that every bad value gets
   // the same one-line error.
   std::string stiffness = "1000";
+  std::string rotational_stiffness = "0.05";
   std::string epsilon;
   std::string max_iterations;
 };
@@ -144,10 +147,10 @@ std::string Str(const Vec3& v) {
 
 void RunPd(const PdOptions& o) {
   // Cheap checks first, so a typo does not wait for a large mesh to load.
-  if (o.mode == "pdg") throw CommandError("pd: mode pdg is not implemented yet");
-  if (o.mode != "pdt") {
-    throw CommandError("pd: unknown mode '" + o.mode + "' (valid modes: pdt; pdg is planned)");
+  if (o.mode != "pdt" && o.mode != "pdg") {
+    throw CommandError("pd: unknown mode '" + o.mode + "' (valid modes: pdt, pdg)");
   }
+  const bool generalized = o.mode == "pdg";
   if (o.probe.empty()) throw CommandError("pd: --probe FILE|shape:SPEC is required");
   if (o.scenes.empty()) throw CommandError("pd: at least one --scene FILE|shape:SPEC is required");
   if (o.pose.empty()) throw CommandError("pd: --pose \"tx ty tz qw qx qy qz\" is required");
@@ -157,6 +160,7 @@ void RunPd(const PdOptions& o) {
   }
   pd::Material material;
   material.stiffness = ParsePositive("--stiffness", o.stiffness);
+  material.rotational_stiffness = ParsePositive("--rotational-stiffness", o.rotational_stiffness);
   pd::PenetrationRequest request;
   if (!o.epsilon.empty()) request.contact_epsilon = ParsePositive("--epsilon", o.epsilon);
   if (!o.max_iterations.empty()) {
@@ -184,10 +188,15 @@ void RunPd(const PdOptions& o) {
   std::size_t contacts = 0;
   double time_us = 0;
   for (std::size_t i = 0; i < bodies.size(); ++i) {
-    pd::PdQueryData data;
-    pd::ComputePdt(*probe, X_WA, *bodies[i], X_WB[i], request, &data, &results[i]);
+    if (generalized) {
+      pd::PdgQueryData data;
+      pd::ComputePdg(*probe, X_WA, *bodies[i], X_WB[i], request, &data, &results[i]);
+    } else {
+      pd::PdQueryData data;
+      pd::ComputePdt(*probe, X_WA, *bodies[i], X_WB[i], request, &data, &results[i]);
+    }
     const pd::PenetrationResult& r = results[i];
-    const Wrench w = pd::PenaltyWrench(r, material, p_WAcm);
+    const Wrench w = pd::PdWrench(r, material, p_WAcm);
     wrench.force += w.force;
     wrench.torque += w.torque;
     iterations += r.iterations;
@@ -204,13 +213,18 @@ void RunPd(const PdOptions& o) {
 
   nlohmann::json j;
   j["colliding"] = colliding;
-  j["mode"] = "pdt";
+  j["mode"] = o.mode;
   j["status"] = top ? pd::ToString(top->status) : "separated";
   j["deepest_body"] = deepest >= 0 ? nlohmann::json(deepest) : nlohmann::json(nullptr);
   j["depth"] = top ? top->depth : 0.0;
   j["translation"] = Vec(translation);
   j["pose"] = PoseArray(X_WA, q_WA);
   j["result_pose"] = PoseArray(X_WA_result, q_WA);
+  if (generalized) {
+    j["sigma"] = top ? top->sigma : 0.0;
+    j["rotation_angle"] = top ? top->rotation_angle : 0.0;
+    j["rotation_axis"] = Vec(top ? top->rotation_axis_W : Vec3(Vec3::UnitZ()));
+  }
   j["iterations"] = iterations;
   j["contacts"] = contacts;
   j["regions"] = nlohmann::json::array();
@@ -218,6 +232,7 @@ void RunPd(const PdOptions& o) {
   j["torque"] = Vec(wrench.torque);
   j["torque_about"] = Vec(p_WAcm);
   j["stiffness"] = material.stiffness;
+  if (generalized) j["rotational_stiffness"] = material.rotational_stiffness;
   j["time_us"] = time_us;
   j["probe"] = {{"source", o.probe}, {"triangles", probe->mesh().num_triangles()}};
   j["bodies"] = nlohmann::json::array();
@@ -239,6 +254,11 @@ void RunPd(const PdOptions& o) {
                         {"contacts", r.features.size()},
                         {"regions", r.regions.size()},
                         {"time_us", r.time_us}};
+    if (generalized) {
+      b["sigma"] = r.sigma;
+      b["rotation_angle"] = r.rotation_angle;
+      b["rotation_axis"] = Vec(r.rotation_axis_W);
+    }
     if (r.status == pd::PdStatus::kFailed) b["failure"] = r.failure;
     j["bodies"].push_back(std::move(b));
   }
@@ -251,20 +271,28 @@ void RunPd(const PdOptions& o) {
   std::cout << std::setprecision(6);
   std::cout << "probe        " << o.probe << " (" << probe->mesh().num_triangles()
             << " triangles)\n"
-            << "mode         pdt\n"
+            << "mode         " << o.mode << "\n"
             << "colliding    " << (colliding ? "yes" : "no") << "\n"
             << "status       " << j["status"].get<std::string>();
   if (deepest >= 0) std::cout << " (deepest: body " << deepest << ")";
   std::cout << "\n"
             << "depth        " << j["depth"].get<double>() << " m\n"
-            << "translation  " << Str(translation) << " m\n"
-            << "result pose  t (" << rp[0].get<double>() << ", " << rp[1].get<double>() << ", "
+            << "translation  " << Str(translation) << " m"
+            << (generalized ? " (of the centre of mass)" : "") << "\n";
+  if (generalized && top) {
+    std::cout << "sigma        " << top->sigma << " m^2\n"
+              << "rotation     " << top->rotation_angle << " rad about "
+              << Str(top->rotation_axis_W) << "\n";
+  }
+  std::cout << "result pose  t (" << rp[0].get<double>() << ", " << rp[1].get<double>() << ", "
             << rp[2].get<double>() << ")  q (" << rp[3].get<double>() << ", " << rp[4].get<double>()
             << ", " << rp[5].get<double>() << ", " << rp[6].get<double>() << ")\n"
             << "force        " << Str(wrench.force) << " N  (k = " << material.stiffness
             << " N/m)\n"
             << "torque       " << Str(wrench.torque) << " N m about the probe's centre of mass "
-            << Str(p_WAcm) << "\n"
+            << Str(p_WAcm);
+  if (generalized) std::cout << "  (xi = " << material.rotational_stiffness << " N m/rad)";
+  std::cout << "\n"
             << "iterations   " << iterations << ", contacts " << contacts << ", regions "
             << j["regions"].size() << "\n"
             << "PD time      " << time_us << " us\n";
@@ -272,8 +300,12 @@ void RunPd(const PdOptions& o) {
     const pd::PenetrationResult& r = results[i];
     std::cout << "body " << i << "       " << o.scenes[i] << " ("
               << bodies[i]->mesh().num_triangles() << " triangles): " << pd::ToString(r.status)
-              << ", depth " << r.depth << " m along " << Str(r.translation_W) << ", "
-              << r.iterations << " iterations, " << r.features.size() << " contacts, " << r.time_us
+              << ", depth " << r.depth << " m along " << Str(r.translation_W) << ", ";
+    if (generalized) {
+      std::cout << "rotation " << r.rotation_angle << " rad about " << Str(r.rotation_axis_W)
+                << ", ";
+    }
+    std::cout << r.iterations << " iterations, " << r.features.size() << " contacts, " << r.time_us
               << " us";
     if (r.status == pd::PdStatus::kFailed) std::cout << ", failure: " << r.failure;
     std::cout << "\n";
@@ -309,12 +341,17 @@ void RegisterPd(CLI::App& app) {
       ->type_name("\"tx ty tz qw qx qy qz\"")
       ->allow_extra_args(false);
   cmd->add_option("--mode", opts->mode,
-                  "PD method: pdt (translational PD, PolyDepth); pdg is not implemented yet")
+                  "PD method: pdt (translational PD, PolyDepth) or pdg (generalized PD under the "
+                  "object norm, PolyDepth++: translation and rotation)")
       ->type_name("MODE")
       ->capture_default_str();
   cmd->add_flag("--json", opts->json, "Print one JSON object");
   cmd->add_option("--stiffness", opts->stiffness, "Penalty stiffness k for the wrench (N/m)")
       ->type_name("K")
+      ->capture_default_str();
+  cmd->add_option("--rotational-stiffness", opts->rotational_stiffness,
+                  "Rotational stiffness xi for the PDg torque xi theta omega (N m/rad)")
+      ->type_name("XI")
       ->capture_default_str();
   cmd->add_option("--epsilon", opts->epsilon,
                   "Contact tolerance as a fraction of the smaller body's size (default 1e-4)")
@@ -330,7 +367,13 @@ void RegisterPd(CLI::App& app) {
       "probe; colliding is true if any body is not separated. force and torque are the sum of "
       "the penalty wrenches of all bodies (f = sum k d_i over contact regions, torque about the "
       "probe's centre of mass at --pose, world frame); iterations, contacts and time_us are "
-      "sums over bodies.\n");
+      "sums over bodies.\n"
+      "With --mode pdg, depth is sqrt(sigma) (sigma: the object norm, the mean squared "
+      "displacement of the probe's points, m^2), translation is the displacement of the probe's "
+      "centre of mass, result_pose the full answer pose (rotation included), rotation_angle "
+      "(rad) and rotation_axis (unit, world) the rotation from --pose to result_pose about the "
+      "centre of mass; the wrench is f = k translation and torque = xi rotation_angle "
+      "rotation_axis, summed over bodies.\n");
   cmd->callback([opts] { RunPd(*opts); });
 }
 

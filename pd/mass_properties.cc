@@ -77,6 +77,10 @@ MassProperties ComputeMassProperties(const Mesh& mesh) {
   // For shells, scale the inertia to the unit-density value the enclosed
   // volume would have so the object norm stays in units of length^2.
   if (mp.surface_fallback && mp.volume > 0) mp.I_C_M *= mp.volume / m;
+  // With no positive enclosed volume the shell inertia stays unscaled and the
+  // norm averages over the area (dividing by the zero volume gave an infinite
+  // rotational weight).
+  mp.norm_measure = mp.surface_fallback && !(mp.volume > 0) ? m : mp.volume;
 
   Eigen::SelfAdjointEigenSolver<Mat3> es(0.5 * (mp.I_C_M + mp.I_C_M.transpose()));
   mp.principal_moments = es.eigenvalues();  // ascending
@@ -88,7 +92,7 @@ MassProperties ComputeMassProperties(const Mesh& mesh) {
 
 Mat6 ObjectNormMetric(const MassProperties& mp) {
   Mat6 M = Mat6::Identity();
-  const double v = std::max(mp.volume, 1e-300);
+  const double v = std::max(mp.norm_measure, 1e-300);
   for (int i = 0; i < 3; ++i) M(i, i) = 4.0 * mp.principal_moments[i] / v;
   return M;
 }

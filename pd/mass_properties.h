@@ -22,6 +22,12 @@ struct MassProperties {
   /// meaningful centre of mass (flat or open meshes); C then falls back to the
   /// area-weighted surface centroid and the inertia to that of the surface.
   bool surface_fallback = false;
+  /// The measure the object norm averages over (m^3, or m^2 for a surface
+  /// that encloses no volume): the volume, except for the surface fallback
+  /// when the enclosed volume is not positive (open sheets, inward winding),
+  /// where I_C_M is the shell's and this is its area, so that I_C_M /
+  /// norm_measure is always a mean second moment (m^2).
+  double norm_measure = 0;
 };
 
 /// Computes volume, centre of mass and inertia (Mirtich / Eberly polyhedral
@@ -32,7 +38,8 @@ MassProperties ComputeMassProperties(const Mesh& mesh);
 
 /// The object-norm weight matrix diag(4 Ixx/V, 4 Iyy/V, 4 Izz/V, 1, 1, 1)
 /// for z = (v, t), with v the vector part of the unit quaternion and t the
-/// translation, both in the body frame (ALGORITHMS.md).
+/// translation, both in the body frame (ALGORITHMS.md): z^T M z is the mean
+/// squared displacement of the body's points (V = norm_measure).
 Mat6 ObjectNormMetric(const MassProperties& mp);
 
 }  // namespace hapticpd::pd

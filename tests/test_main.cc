@@ -6,7 +6,9 @@
 #include <spdlog/spdlog.h>
 
 #include <atomic>
+#include <iostream>
 #include <mutex>
+#include <string_view>
 
 #include "tests/test_util.h"
 
@@ -33,6 +35,15 @@ ScopedExpectLogs::~ScopedExpectLogs() { --g_expect_depth; }
 
 int main(int argc, char** argv) {
   ::testing::InitGoogleTest(&argc, argv);
+  // Our own flag (gtest leaves arguments it does not know in argv).
+  for (int i = 1; i < argc; ++i) {
+    if (std::string_view(argv[i]) == "--long") {
+      hapticpd::testing::LongMode() = true;
+    } else {
+      std::cerr << "unknown argument: " << argv[i] << " (gtest flags, or --long)\n";
+      return 2;
+    }
+  }
   auto sink = std::make_shared<hapticpd::testing::FailOnWarningSink>();
   auto logger = std::make_shared<spdlog::logger>("test", sink);
   spdlog::set_default_logger(logger);

@@ -15,10 +15,21 @@ inline std::uint64_t TestSeed(std::uint64_t fallback = 20261121) {
   return s ? std::strtoull(s, nullptr, 10) : fallback;
 }
 
-/// Count for randomized tests: HAPTICPD_TEST_COUNT, else `fallback`.
+/// Long mode (`--long` on a test binary's command line, or HAPTICPD_LONG=1):
+/// randomized tests run 20x their default count.
+inline bool& LongMode() {
+  static bool long_mode = [] {
+    const char* s = std::getenv("HAPTICPD_LONG");
+    return s != nullptr && std::atoi(s) != 0;
+  }();
+  return long_mode;
+}
+
+/// Count for randomized tests: HAPTICPD_TEST_COUNT, else `fallback` (20x in
+/// long mode).
 inline int TestCount(int fallback) {
   const char* s = std::getenv("HAPTICPD_TEST_COUNT");
-  return s ? std::atoi(s) : fallback;
+  return s ? std::atoi(s) : (LongMode() ? 20 * fallback : fallback);
 }
 
 /// The folder of shared public test meshes (../shared/models next to the

@@ -205,6 +205,56 @@ TEST(CliTest, PdCommonTranslation) {
   EXPECT_NEAR(j["result_pose"][0].get<double>(), 12.0, kTol);
 }
 
+// PDg: a bar 2 m long tilted by 0.05 rad about y dips its +x end 0.05 m into
+// a slab. Turning it flat (about -y) is cheaper than lifting it, so
+// sqrt(sigma) is below the PDt depth; the answer pose carries the rotation
+// and the torque xi theta omega turns the +x end up (negative y component).
+constexpr char kTiltedBar[] =
+    "pd --probe shape:box:1,0.2,0.1 --scene shape:box:2,2,1 "
+    "--pose '0.3 0.2 1.1 0.99968751627570263 0 0.024997395914712332 0'";
+
+TEST(CliTest, PdgTiltedBarTurnsFlat) {
+  const RunResult rt = RunCli(std::string(kTiltedBar) + " --json");
+  const RunResult rg =
+      RunCli(std::string(kTiltedBar) + " --mode pdg --rotational-stiffness 2 --json");
+  ASSERT_EQ(rt.exit_code, 0) << rt.err;
+  ASSERT_EQ(rg.exit_code, 0) << rg.err;
+  const nlohmann::json t = Json(rt), g = Json(rg);
+  EXPECT_EQ(g.value("mode", ""), "pdg");
+  EXPECT_TRUE(g.value("colliding", false));
+  EXPECT_FALSE(t.contains("sigma"));
+  const double pdt = t.value("depth", -1.0), pdg = g.value("depth", -1.0);
+  EXPECT_GT(pdg, 0.0);
+  EXPECT_LT(pdg, 0.9 * pdt);
+  EXPECT_NEAR(g.value("sigma", -1.0), pdg * pdg, 1e-12);
+  const double angle = g.value("rotation_angle", -1.0);
+  EXPECT_GT(angle, 0.01);
+  const auto axis = g["rotation_axis"].get<std::vector<double>>();
+  ASSERT_EQ(axis.size(), 3u);
+  EXPECT_NEAR(std::hypot(axis[0], axis[1], axis[2]), 1.0, 1e-9);
+  EXPECT_LT(axis[1], -0.9);
+  // result_pose is the full answer: its quaternion differs from the input's
+  // by the reported rotation.
+  const auto p = g["result_pose"].get<std::vector<double>>();
+  ASSERT_EQ(p.size(), 7u);
+  EXPECT_NEAR(std::hypot(std::hypot(p[3], p[4]), std::hypot(p[5], p[6])), 1.0, 1e-9);
+  const double dot = p[3] * 0.99968751627570263 + p[5] * 0.024997395914712332;
+  EXPECT_NEAR(2 * std::acos(std::min(1.0, std::abs(dot))), angle, 1e-6);
+  EXPECT_NEAR(g.value("rotational_stiffness", 0.0), 2.0, 0);
+  const auto tau = g["torque"].get<std::vector<double>>();
+  EXPECT_NEAR(tau[1], 2.0 * angle * axis[1], 1e-9);
+  EXPECT_GT(g["force"][2].get<double>(), 0.0);
+  ASSERT_EQ(g["bodies"].size(), 1u);
+  EXPECT_NEAR(g["bodies"][0].value("sigma", -1.0), pdg * pdg, 1e-12);
+  EXPECT_TRUE(g["bodies"][0].contains("rotation_axis"));
+  // The human-readable form names the rotation.
+  const RunResult rh = RunCli(std::string(kTiltedBar) + " --mode pdg");
+  ASSERT_EQ(rh.exit_code, 0) << rh.err;
+  for (const char* s : {"mode         pdg", "sigma", "rotation", "xi ="}) {
+    EXPECT_NE(rh.out.find(s), std::string::npos) << s << " missing from:\n" << rh.out;
+  }
+}
+
 TEST(CliTest, PdSeparated) {
   const RunResult r = RunCli(std::string(kBoxes) + " --pose '2.5 0 0 1 0 0 0' --json");
   ASSERT_EQ(r.exit_code, 0) << r.err;
@@ -295,9 +345,9 @@ TEST(CliTest, PdBadInput) {
   ExpectOneLineError(
       std::string(kBoxes) + ok_pose + " --scene-pose '0 0 0 1 0 0 0' --scene-pose '1 0 0 1 0 0 0'",
       "2 --scene-pose given for 1 --scene");
-  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode foo", "valid modes: pdt");
-  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode pdg",
-                     "mode pdg is not implemented yet");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode foo", "valid modes: pdt, pdg");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode pdg --rotational-stiffness 0",
+                     "--rotational-stiffness");
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --stiffness 0", "--stiffness");
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --stiffness -5", "positive");
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --epsilon -1e-4", "--epsilon");

@@ -3,6 +3,8 @@
 #pragma once
 
 #include <memory>
+#include <span>
+#include <vector>
 
 #include "pd/mesh.h"
 #include "pd/types.h"
@@ -30,5 +32,15 @@ struct EpaResult {
 
 EpaResult BulletPenetration(const BulletHull& a, const Pose& X_WA, const BulletHull& b,
                             const Pose& X_WB);
+
+/// Bullet's convex hull of a point set (btConvexHullComputer: Preparata-Hong
+/// on coordinates rounded to a fixed-point grid, so nearly coplanar points may
+/// merge; an independent reference for clouds in general position).
+struct BulletHullSummary {
+  std::vector<int> input_vertices;  ///< input indices of the hull vertices, sorted
+  int faces = 0;                    ///< planar n-gons (coplanar triangles merged)
+  double volume = 0;                ///< of Bullet's faces (fan-triangulated) over the input points
+};
+BulletHullSummary BulletConvexHull(std::span<const Vec3> points);
 
 }  // namespace hapticpd::testing

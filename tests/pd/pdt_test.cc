@@ -14,6 +14,7 @@
 #include "tests/alloc_counter.h"
 #include "tests/oracles/bullet_oracle.h"
 #include "tests/oracles/fcl_oracle.h"
+#include "tests/pd/pd_test_support.h"
 #include "tests/pd/random_poses.h"
 #include "tests/test_util.h"
 
@@ -24,66 +25,6 @@ using testing::FclCollide;
 using testing::FclModel;
 using testing::NearSurfacePose;
 using testing::RandomRotation;
-
-// Exact PDt of two convex polytopes by brute force over every candidate axis
-// (face normals of both, cross products of every edge pair); written
-// independently of pd/convex.cc (no Gauss-map pruning, supports by scan).
-double BruteForceConvexPdt(const Mesh& a, const Pose& X_WA, const Mesh& b, const Pose& X_WB,
-                           Vec3* dir) {
-  std::vector<Vec3> va, vb, axes;
-  for (const Vec3& v : a.vertices()) va.push_back(X_WA * v);
-  for (const Vec3& v : b.vertices()) vb.push_back(X_WB * v);
-  for (const Vec3& n : a.face_normals()) axes.push_back(X_WA.R * n);
-  for (const Vec3& n : b.face_normals()) axes.push_back(X_WB.R * n);
-  for (const Edge& ea : a.edges()) {
-    const Vec3 da = X_WA.R * (a.vertices()[ea.v[1]] - a.vertices()[ea.v[0]]);
-    for (const Edge& eb : b.edges()) {
-      const Vec3 c = da.cross(X_WB.R * (b.vertices()[eb.v[1]] - b.vertices()[eb.v[0]]));
-      if (c.norm() > 1e-12) axes.push_back(c.normalized());
-    }
-  }
-  double best = std::numeric_limits<double>::infinity();
-  for (const Vec3& axis : axes) {
-    for (double sign : {1.0, -1.0}) {
-      const Vec3 u = sign * axis;
-      double max_b = -std::numeric_limits<double>::infinity();
-      double min_a = std::numeric_limits<double>::infinity();
-      for (const Vec3& p : vb) max_b = std::max(max_b, u.dot(p));
-      for (const Vec3& p : va) min_a = std::min(min_a, u.dot(p));
-      if (max_b - min_a < best) {
-        best = max_b - min_a;
-        *dir = u;
-      }
-    }
-  }
-  return best;
-}
-
-// Independent contact check: pushed out by a tiny fraction the probe is free,
-// pulled in by the same fraction it collides (FCL boolean collide).
-void ExpectRealContact(const FclModel& fa, const FclModel& fb, const Pose& X_WB,
-                       const PenetrationResult& r, double rel = 1e-6) {
-  ASSERT_GT(r.depth, 0);
-  const Vec3 u = r.translation_W / r.depth;
-  const double step = std::max(rel * r.depth, 1e-12);
-  const Pose out{r.X_WA_result.R, r.X_WA_result.t + u * step};
-  const Pose in{r.X_WA_result.R, r.X_WA_result.t - u * step};
-  EXPECT_FALSE(FclCollide(fa, out, fb, X_WB)) << "answer is an over-push: not free when pushed out";
-  EXPECT_TRUE(FclCollide(fa, in, fb, X_WB)) << "answer is not a contact: free when pulled in";
-}
-
-// The three views of one answer agree: depth, PD vector and result pose.
-void ExpectConsistent(const Pose& X_WA, const PenetrationResult& r) {
-  EXPECT_NEAR(r.translation_W.norm(), r.depth, 1e-12 * (1 + r.depth));
-  EXPECT_LT((r.X_WA_result.t - X_WA.t - r.translation_W).norm(), 1e-12 * (1 + X_WA.t.norm()));
-  EXPECT_LT((r.X_WA_result.R - X_WA.R).norm(), 1e-12);  // PDt never rotates
-}
-
-PenetrationRequest ColdRequest() {
-  PenetrationRequest req;
-  req.use_coherence = false;
-  return req;
-}
 
 // --------------------------------------------------------------------------
 // Convex pairs: exact
@@ -189,21 +130,6 @@ TEST(PdtConvex, SwappingProbeAndSceneNegatesTheVector) {
 
 // --------------------------------------------------------------------------
 // Non-convex pairs: verified contacts and quality
-
-struct NonConvexCase {
-  const char* name;
-  Mesh a, b;
-  double spread;
-};
-
-std::vector<NonConvexCase> NonConvexCases() {
-  std::vector<NonConvexCase> v;
-  v.push_back({"box-torus", shapes::Box(Vec3(0.01, 0.01, 0.04)), shapes::Torus(), 0.005});
-  v.push_back({"stick-torusknot", shapes::Stick(), shapes::TorusKnot(), 0.004});
-  v.push_back({"spoon-cup", shapes::Spoon(), shapes::Cup(), 0.004});
-  v.push_back({"torus-cup", shapes::Torus(0.03, 0.01, 24, 12), shapes::Cup(), 0.004});
-  return v;
-}
 
 TEST(PdtNonConvex, EveryAnswerIsAVerifiedContact) {
   std::mt19937_64 rng(testing::TestSeed());
@@ -531,17 +457,8 @@ TEST(PdtAllocation, NoHeapAllocationAfterWarmUp) {
   for (int k = 0; k < 60; ++k) {
     poses.push_back(Pose{X0.R, X0.t + Vec3(0, 0, -0.0001 * k)});
   }
-  // Warm up: two passes, so the coherence cache and every buffer (including
-  // the caller's result vectors) have seen the trajectory's working sizes.
-  for (int pass = 0; pass < 2; ++pass) {
-    for (const Pose& X : poses) ComputePdt(*A, X, *B, Pose::Identity(), req, &data, &r);
-  }
-  std::size_t allocations = 0;
-  {
-    testing::CountAllocations counter;
-    for (const Pose& X : poses) ComputePdt(*A, X, *B, Pose::Identity(), req, &data, &r);
-    allocations = counter.count();
-  }
+  const std::size_t allocations = AllocationsAfterWarmUp(
+      poses, [&](const Pose& X) { ComputePdt(*A, X, *B, Pose::Identity(), req, &data, &r); });
   EXPECT_EQ(allocations, 0u);
 }
 

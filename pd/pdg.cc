@@ -1,0 +1,730 @@
+#include "pd/pdg.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <string>
+
+namespace hapticpd::pd {
+
+// ---------------------------------------------------------------------------
+// The in-projection QP (Goldfarb-Idnani dual active set, unit Hessian after
+// scaling)
+
+void MetricQp::Add(const Vec6& a, double b) {
+  if (!a.allFinite() || !std::isfinite(b) || !(a.squaredNorm() > 0)) return;
+  rows_.push_back({a, b});
+}
+
+namespace {
+
+// Orthonormal basis Q (columns 0..q-1) and upper-triangular R of the active
+// rows N = Q R by modified Gram-Schmidt with one re-orthogonalisation pass.
+struct ActiveFactor {
+  Eigen::Matrix<double, 6, 6> Q;
+  Eigen::Matrix<double, 6, 6> R;
+  int q = 0;
+};
+
+void Factor(const std::array<const Vec6*, 6>& cols, int q, ActiveFactor* f) {
+  f->q = q;
+  for (int j = 0; j < q; ++j) {
+    Vec6 v = *cols[j];
+    for (int k = 0; k < j; ++k) f->R(k, j) = 0;
+    for (int pass = 0; pass < 2; ++pass) {
+      for (int k = 0; k < j; ++k) {
+        const double c = f->Q.col(k).dot(v);
+        f->R(k, j) += c;
+        v -= c * f->Q.col(k);
+      }
+    }
+    const double n = v.norm();
+    f->R(j, j) = n;
+    f->Q.col(j) = n > 0 ? Vec6(v / n) : Vec6(Vec6::Zero());
+  }
+}
+
+// Splits a into its component in span(active) (coefficients r in the active
+// rows' basis, r = N^+ a) and the rest (returned).
+Vec6 Project(const ActiveFactor& f, const Vec6& a, std::array<double, 6>* r) {
+  Vec6 rest = a;
+  std::array<double, 6> c{};
+  for (int pass = 0; pass < 2; ++pass) {
+    for (int k = 0; k < f.q; ++k) {
+      const double ck = f.Q.col(k).dot(rest);
+      c[k] += ck;
+      rest -= ck * f.Q.col(k);
+    }
+  }
+  for (int j = f.q - 1; j >= 0; --j) {  // back substitution R r = c
+    double s = c[j];
+    for (int k = j + 1; k < f.q; ++k) s -= f.R(j, k) * (*r)[k];
+    (*r)[j] = s / f.R(j, j);
+  }
+  return rest;
+}
+
+}  // namespace
+
+QpStatus MetricQp::Solve(const Vec6& m, Vec6* z_out, std::vector<double>* multipliers) {
+  const Vec6 sinv = m.cwiseSqrt().cwiseInverse();
+  scaled_.clear();
+  double b_scale = 0;
+  bool zero_row_violated = false;
+  for (const Constraint6& c : rows_) {
+    const Vec6 a = c.a.cwiseProduct(sinv);
+    const double n = a.norm();
+    if (!(n > 0) || !std::isfinite(n)) {
+      scaled_.push_back({Vec6::Zero(), c.b, 0});
+      zero_row_violated = zero_row_violated || c.b > 0;
+      continue;
+    }
+    scaled_.push_back({a / n, c.b / n, n});
+    b_scale = std::max(b_scale, std::abs(c.b / n));
+  }
+  if (multipliers) multipliers->assign(rows_.size(), 0.0);
+  if (zero_row_violated) {
+    z_out->setZero();
+    return QpStatus::kInfeasible;
+  }
+  const int m_rows = static_cast<int>(scaled_.size());
+  // Feasibility tolerance in the scaled space (units of sqrt(sigma)).
+  const double tol = 1e-12 * std::max(b_scale, 1e-300);
+  constexpr double kDependent = 1e-20;  // |rest|^2 of a unit row: in the active span
+
+  Vec6 y = Vec6::Zero();
+  std::array<int, 6> act{};
+  std::array<double, 6> u{};
+  std::array<const Vec6*, 6> cols{};
+  int q = 0;
+  ActiveFactor factor;
+  auto drop = [&](int k) {
+    for (int j = k; j + 1 < q; ++j) {
+      act[j] = act[j + 1];
+      u[j] = u[j + 1];
+      cols[j] = cols[j + 1];
+    }
+    --q;
+  };
+  const int cap = 50 + 12 * (m_rows + 6);
+  int steps = 0;
+  QpStatus status = QpStatus::kCapReached;
+  while (steps < cap) {
+    // Most violated row not in the active set.
+    int p = -1;
+    double worst = -tol;
+    for (int i = 0; i < m_rows; ++i) {
+      if (scaled_[i].scale == 0) continue;
+      const double s = scaled_[i].a.dot(y) - scaled_[i].b;
+      if (s < worst) {
+        bool active = false;
+        for (int k = 0; k < q; ++k) active = active || act[k] == i;
+        if (active) continue;
+        worst = s;
+        p = i;
+      }
+    }
+    if (p < 0) {
+      status = QpStatus::kSolved;
+      break;
+    }
+    const Vec6& ap = scaled_[p].a;
+    double up = 0;
+    bool added = false;
+    while (!added && steps < cap) {
+      ++steps;
+      Factor(cols, q, &factor);
+      std::array<double, 6> r{};
+      const Vec6 zdir = Project(factor, ap, &r);
+      const double zz = zdir.squaredNorm();
+      // Dual step length: the first active multiplier to reach zero.
+      double t1 = std::numeric_limits<double>::infinity();
+      int k_block = -1;
+      for (int j = 0; j < q; ++j) {
+        if (r[j] > 0) {
+          const double ratio = u[j] / r[j];
+          if (ratio < t1) {
+            t1 = ratio;
+            k_block = j;
+          }
+        }
+      }
+      const double sp = ap.dot(y) - scaled_[p].b;
+      // With six active rows the null space is empty whatever rounding says.
+      const double t2 =
+          q < 6 && zz > kDependent ? -sp / zz : std::numeric_limits<double>::infinity();
+      if (k_block < 0 && !std::isfinite(t2)) {
+        *z_out = y.cwiseProduct(sinv);
+        return QpStatus::kInfeasible;
+      }
+      const double t = std::min(t1, t2);
+      if (std::isfinite(t2)) y += t * zdir;
+      for (int j = 0; j < q; ++j) u[j] -= t * r[j];
+      up += t;
+      if (t2 <= t1) {
+        act[q] = p;
+        u[q] = up;
+        cols[q] = &ap;
+        ++q;
+        added = true;
+      } else {
+        drop(k_block);
+      }
+    }
+  }
+  *z_out = y.cwiseProduct(sinv);
+  if (multipliers && status == QpStatus::kSolved) {
+    // Objective z^T M z = |y|^2 (not |y|^2 / 2) and rows were scaled by 1/scale.
+    for (int k = 0; k < q; ++k) (*multipliers)[act[k]] = 2 * u[k] / scaled_[act[k]].scale;
+  }
+  return status;
+}
+
+// ---------------------------------------------------------------------------
+// The object norm and the configuration chart
+
+namespace {
+
+Vec6 MetricDiagonal(const MassProperties& mp) { return ObjectNormMetric(mp).diagonal(); }
+
+}  // namespace
+
+double ObjectNormSquared(const MassProperties& mp, const Vec6& z) {
+  return z.cwiseProduct(z).dot(MetricDiagonal(mp));
+}
+
+Vec6 RelativeConfiguration(const MassProperties& mp, const Pose& X_WA0, const Pose& X_WA1) {
+  const Mat3 R_WAb0 = X_WA0.R * mp.X_MB.R;
+  const Mat3 R_WAb1 = X_WA1.R * mp.X_MB.R;
+  Quat q(R_WAb0.transpose() * R_WAb1);
+  if (q.w() < 0) q.coeffs() = -q.coeffs();
+  Vec6 z;
+  z.head<3>() = q.vec();
+  z.tail<3>() = R_WAb0.transpose() * (X_WA1 * mp.p_MC - X_WA0 * mp.p_MC);
+  return z;
+}
+
+Pose PoseAtConfiguration(const MassProperties& mp, const Pose& X_WA0, const Vec6& z) {
+  Vec3 v = z.head<3>();
+  const double n2 = v.squaredNorm();
+  double w = 0;
+  if (n2 > 1) {
+    v /= std::sqrt(n2);
+  } else {
+    w = std::sqrt(1 - n2);
+  }
+  const Mat3 R_WAb0 = X_WA0.R * mp.X_MB.R;
+  const Mat3 R_WAb = R_WAb0 * Quat(w, v.x(), v.y(), v.z()).toRotationMatrix();
+  Pose X;
+  X.R = R_WAb * mp.X_MB.R.transpose();
+  const Vec3 c = X_WA0 * mp.p_MC + R_WAb0 * z.tail<3>();
+  X.t = c - X.R * mp.p_MC;
+  return X;
+}
+
+// ---------------------------------------------------------------------------
+// PDg
+
+PdgQueryData::PdgQueryData() {
+  scratch.stack.reserve(1024);
+  scratch.heap.reserve(4096);
+  collision.pairs.reserve(16);
+  ccd.features.reserve(1024);
+  proximity.pairs.reserve(1024);
+  best_features.reserve(1024);
+  extra_features.reserve(1024);
+  qp.Reserve(2048);
+  pdt_result.features.reserve(1024);
+  pdt_result.regions.reserve(64);
+}
+
+void PdgQueryData::Remember(const CoherenceEntry& e) {
+  coherence[coherence_head_] = e;
+  coherence_head_ = (coherence_head_ + 1) % kCoherenceSlots;
+  coherence_size_ = std::min(coherence_size_ + 1, kCoherenceSlots);
+}
+
+Wrench PdgWrench(const PenetrationResult& result, const Material& material) {
+  Wrench w;
+  if (result.status == PdStatus::kSeparated || result.status == PdStatus::kFailed) return w;
+  w.force = material.stiffness * result.translation_W;
+  w.torque = material.rotational_stiffness * result.rotation_angle * result.rotation_axis_W;
+  return w;
+}
+
+Wrench PdWrench(const PenetrationResult& result, const Material& material, const Vec3& p_WAcm) {
+  return result.mode == PdMode::kGeneralized ? PdgWrench(result, material)
+                                             : PenaltyWrench(result, material, p_WAcm);
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// One query's fixed data. The working frame is B's (X_WB = identity), as in
+// PDt, so the answer depends only on the relative pose.
+struct PdgContext {
+  const GeometryModel& A;
+  const Pose& X_WA;  // query pose q_o
+  const GeometryModel& B;
+  const Pose& X_WB;
+  const PenetrationRequest& request;
+  PdgQueryData& data;
+  double eps;   // contact tolerance (m): feature pairs closer than this are contacts
+  Vec6 metric;  // diagonal of M
+  Mat3 R_WAb0;  // body frame at the query pose
+  Vec3 c0;      // centre of mass at the query pose
+};
+
+double Sigma(const PdgContext& c, const Vec6& z) { return z.cwiseProduct(z).dot(c.metric); }
+
+Vec6 Z(const PdgContext& c, const Pose& X) { return RelativeConfiguration(c.A.mass(), c.X_WA, X); }
+
+Pose At(const PdgContext& c, const Vec6& z) { return PoseAtConfiguration(c.A.mass(), c.X_WA, z); }
+
+// Largest displacement of any point of A between two poses along the rigid
+// interpolating motion (bound): |delta c| + theta r_max.
+double MotionLength(const PdgContext& c, const Pose& X0, const Pose& X1) {
+  const double ang = Eigen::AngleAxisd(X1.R * X0.R.transpose()).angle();
+  return (X1 * c.A.mass().p_MC - X0 * c.A.mass().p_MC).norm() + ang * c.A.radius_about_com();
+}
+
+bool Colliding(PdgContext& c, const Pose& X) {
+  CollisionRequest req;
+  return Collide(c.A, X, c.B, c.X_WB, req, &c.data.collision, &c.data.scratch);
+}
+
+// Sweeps A by translation from the free pose X_from, at its rotation, until
+// its centre of mass reaches X_to's (exact translational CCD). On a hit
+// returns the contact pose (touching) with its feature pairs in
+// data.ccd.features; otherwise *X_end is the free pose reached.
+bool SweepTranslation(PdgContext& c, const Pose& X_from, const Pose& X_to, Pose* X_contact,
+                      Pose* X_end) {
+  const Vec3& p_AC = c.A.mass().p_MC;
+  const Vec3 d = X_to * p_AC - X_from * p_AC;
+  CcdRequest req;
+  req.feature_tolerance = c.eps;
+  if (TranslationalCcd(c.A, X_from, d, c.B, c.X_WB, req, &c.data.ccd, &c.data.scratch)) {
+    *X_contact = c.data.ccd.X_WA_contact;
+    return true;
+  }
+  *X_end = Pose{X_from.R, X_from.t + d};
+  return false;
+}
+
+// Rotates A about its centre of mass from the free pose X_from towards the
+// query rotation (rigid CCD, conservative advancement to within eps / 2),
+// then closes the smallest remaining gap exactly by translational CCD.
+bool SweepRotation(PdgContext& c, const Pose& X_from, Pose* X_contact) {
+  CcdRequest req;
+  req.distance_tolerance = 0.5 * c.eps;
+  req.feature_tolerance = c.eps;
+  req.max_iterations = 32;
+  const Pose X_to{c.X_WA.R, X_from.t + X_from.R * c.A.mass().p_MC - c.X_WA.R * c.A.mass().p_MC};
+  if (!RigidCcd(c.A, X_from, X_to, c.B, c.X_WB, req, &c.data.ccd, &c.data.scratch) ||
+      c.data.ccd.features.empty()) {
+    return false;
+  }
+  const FeaturePair* closest = &c.data.ccd.features.front();
+  for (const FeaturePair& f : c.data.ccd.features) {
+    closest = f.distance < closest->distance ? &f : closest;
+  }
+  const Vec3 gap = closest->p_WB - closest->p_WA;
+  const Pose X_s = c.data.ccd.X_WA_contact;
+  req = CcdRequest();
+  req.feature_tolerance = c.eps;
+  if (!TranslationalCcd(c.A, X_s, gap * (1 + 1e-6), c.B, c.X_WB, req, &c.data.ccd,
+                        &c.data.scratch)) {
+    return false;
+  }
+  *X_contact = c.data.ccd.X_WA_contact;
+  return true;
+}
+
+// Out-projection of the free pose X_free towards the query pose, sigma
+// decreasing along the way: exact translational CCD of the centre of mass
+// back to its query position at X_free's rotation; if the probe is still
+// free there (the rotation alone separates it), rigid CCD turning it back
+// towards the query rotation.
+//
+// Deviation from the rigid-motion out-projection of ALGORITHMS.md: rigid CCD
+// here is conservative advancement (RigidCcd), whose Distance queries near a
+// contact cost up to milliseconds on the benchmark models and whose speed
+// bound |dc| + theta r_max makes it crawl. Measured on bench_pdg (500 frames
+// each), six rigid CCD steps before the translational finish made PDg 3 to
+// 20 times slower at p50 for the same median sigma (within 0.01 of it); the
+// final contact is still checked along the rigid motion from q_o (Polish).
+bool OutProject(PdgContext& c, const Pose& X_free, Pose* X_contact) {
+  Pose X_end;
+  if (SweepTranslation(c, X_free, c.X_WA, X_contact, &X_end)) return true;
+  return SweepRotation(c, X_end, X_contact);
+}
+
+// The rigid motion from the query pose to X, extended to parameter s
+// (s = 1: X; s > 1: further along the same motion).
+Pose AlongAnswer(const PdgContext& c, const Pose& X, double s) {
+  return InterpolateRigid(c.X_WA, X, c.A.mass().p_MC, s);
+}
+
+// Linearised contact constraints at the contact pose X_c (configuration
+// z_c): for each feature pair with unit normal n (B towards A), gap g and
+// lever r = p - c(q_c),  dg = n . dc + (r x n) . dtheta_W  with
+// dc = R_WAb0 dt and dtheta_W = R_WAb0 E(v_c) dv, so
+// a = (E^T R_WAb0^T (r x n), R_WAb0^T n) and a . z >= a . z_c - max(g, 0).
+// The gap is clamped at 0 so that z_c itself is feasible. Appends to data.qp.
+void AddConstraints(PdgContext& c, const std::vector<FeaturePair>& features, const Pose& X_c,
+                    const Vec6& z_c) {
+  MetricQp& qp = c.data.qp;
+  const Vec3 v = z_c.head<3>();
+  // E blows up as w -> 0 (rotations near 180 degrees leave the chart); a
+  // floor keeps the rows finite there, the CCD re-projection keeps answers
+  // exact.
+  const double w = std::max(std::sqrt(std::max(0.0, 1 - v.squaredNorm())), 1e-3);
+  Mat3 vx;
+  vx << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  const Mat3 E = 2 * (w * Mat3::Identity() + v * v.transpose() / w + vx);
+  const Mat3 G = E.transpose() * c.R_WAb0.transpose();
+  const Vec3 c_c = X_c * c.A.mass().p_MC;
+  for (const FeaturePair& f : features) {
+    const Vec3& n = f.n_W;
+    if (!(n.squaredNorm() > 0.5)) continue;  // degenerate normal: dropped
+    Vec6 a;
+    a.head<3>() = G * (f.p_WA - c_c).cross(n);
+    a.tail<3>() = c.R_WAb0.transpose() * n;
+    qp.Add(a, a.dot(z_c) - std::max(f.signed_distance, 0.0));
+  }
+}
+
+// PDt's contact features as feature pairs (touching: gap 0).
+void FeaturesFromPdt(const PenetrationResult& r, std::vector<FeaturePair>* out) {
+  out->clear();
+  for (const ContactFeature& f : r.features) {
+    FeaturePair p;
+    p.type = f.type;
+    p.a = f.a;
+    p.b = f.b;
+    p.p_WA = f.p_W;
+    p.p_WB = f.p_W;
+    p.n_W = f.n_W;
+    out->push_back(p);
+  }
+}
+
+struct Best {
+  Pose X;
+  Vec6 z = Vec6::Zero();
+  double sigma = std::numeric_limits<double>::infinity();
+  bool valid = false;
+};
+
+void Accept(PdgContext& c, const Pose& X, Best* best) {
+  best->X = X;
+  best->z = Z(c, X);
+  best->sigma = Sigma(c, best->z);
+  best->valid = true;
+}
+
+// Free start from the SE(3) coherence cache: the two cached poses nearest to
+// the query (object norm); a cached contact is pushed out a little further
+// along its own motion, a cached free pose is used as is; the first that is
+// free now is out-projected towards the query pose.
+bool CoherentStart(PdgContext& c, Pose* X_contact) {
+  PdgQueryData& d = c.data;
+  if (!c.request.use_coherence || d.coherence_size_ == 0) return false;
+  // The two entries nearest to the query pose under the object norm.
+  std::array<double, PdgQueryData::kCoherenceSlots> dist{};
+  std::array<int, PdgQueryData::kCoherenceSlots> order{};
+  for (int i = 0; i < d.coherence_size_; ++i) {
+    dist[i] = Sigma(c, Z(c, d.coherence[i].X_BA_query));
+    order[i] = i;
+  }
+  const int tries = std::min(2, d.coherence_size_);
+  std::partial_sort(order.begin(), order.begin() + tries, order.begin() + d.coherence_size_,
+                    [&](int x, int y) { return dist[x] < dist[y]; });
+  for (int k = 0; k < tries; ++k) {
+    const PdgQueryData::CoherenceEntry& e = d.coherence[order[k]];
+    if (!e.contact) {
+      if (!Colliding(c, e.X_BA_query)) return OutProject(c, e.X_BA_query, X_contact);
+      continue;
+    }
+    // The cached answer's motion applied to the current query pose (follows
+    // the probe as it turns), then the cached answer pose itself (stays put
+    // relative to B), each pushed a little further along its motion.
+    for (int variant = 0; variant < 2; ++variant) {
+      const Pose X0 = variant == 0 ? c.X_WA : e.X_BA_query;
+      const Pose X1 = variant == 0 ? At(c, e.z) : e.X_BA_answer;
+      const double motion = MotionLength(c, X0, X1);
+      if (!(motion > 0)) continue;
+      for (double push : {2.0, 20.0}) {
+        const Pose X_f = InterpolateRigid(X0, X1, c.A.mass().p_MC, 1 + push * c.eps / motion);
+        if (!Colliding(c, X_f)) return OutProject(c, X_f, X_contact);
+      }
+    }
+  }
+  return false;
+}
+
+// The answer must be a contact along its own motion from the query pose:
+// pushed a hair further along it A must be free, pulled back a hair it must
+// collide. Returns false when the push collides (the answer was reached
+// sideways, into a pocket); a free pull-back means a better contact on the
+// same ray, which is out-projected and checked again.
+// First-order behaviour of the contact feature pairs at `best` under its own
+// motion from the query pose: `opens_all` when moving further along the
+// motion opens every pair (each normal has a clear positive component along
+// its point's velocity), `closes_one` when moving back closes a touching pair.
+void ClassifyAlongMotion(const PdgContext& c, const Best& best,
+                         const std::vector<FeaturePair>& features, bool* opens_all,
+                         bool* closes_one) {
+  const Vec3 c1 = best.X * c.A.mass().p_MC;
+  const Eigen::AngleAxisd aa(best.X.R * c.X_WA.R.transpose());
+  const Vec3 omega = aa.angle() * aa.axis();
+  const double touching = 1e-3 * c.eps;
+  *opens_all = !features.empty();
+  *closes_one = false;
+  for (const FeaturePair& f : features) {
+    const Vec3 v = (c1 - c.c0) + omega.cross(f.p_WA - c1);  // d p / d s at s = 1
+    const double speed = v.norm();
+    const double cosine = speed > 0 ? f.n_W.dot(v) / speed : 0.0;
+    *opens_all = *opens_all && cosine > 0.05;
+    *closes_one = *closes_one || (cosine > 0.05 && f.distance <= touching);
+  }
+}
+
+bool Polish(PdgContext& c, Best* best, std::vector<FeaturePair>* features) {
+  constexpr double kPush = 1e-6;  // of the motion
+  constexpr double kPull = 1e-9;
+  constexpr int kRounds = 3;
+  for (int round = 0;; ++round) {
+    if (!(best->sigma > 0)) return true;
+    bool opens_all = false, closes_one = false;
+    ClassifyAlongMotion(c, *best, *features, &opens_all, &closes_one);
+    // The collision queries only where first order does not decide.
+    if (!opens_all && Colliding(c, AlongAnswer(c, best->X, 1 + kPush))) return false;
+    if (round == kRounds || closes_one) return true;
+    const Pose X_in = AlongAnswer(c, best->X, 1 - kPull);
+    Pose X_new;
+    if (Colliding(c, X_in) || !OutProject(c, X_in, &X_new) ||
+        !(Sigma(c, Z(c, X_new)) < best->sigma)) {
+      return true;
+    }
+    Accept(c, X_new, best);
+    *features = c.data.ccd.features;
+  }
+}
+
+// A fresh PDg result for the query pose, keeping the vectors' capacity (no
+// allocation on the hot path).
+void ResetResult(const Pose& X_WA, PenetrationResult* result) {
+  std::vector<ContactFeature> features = std::move(result->features);
+  std::vector<ContactRegion> regions = std::move(result->regions);
+  std::string failure = std::move(result->failure);
+  features.clear();
+  regions.clear();
+  failure.clear();
+  *result = PenetrationResult{};
+  result->features = std::move(features);
+  result->regions = std::move(regions);
+  result->failure = std::move(failure);
+  result->mode = PdMode::kGeneralized;
+  result->X_WA_result = X_WA;
+}
+
+void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+             const PenetrationRequest& request, PdgQueryData* data, PenetrationResult* result,
+             Clock::time_point t0) {
+  ResetResult(X_WA, result);
+  const double size = std::min(A.mesh().size(), B.mesh().size());
+  const double eps = std::max(request.contact_epsilon, 1e-12) * size;
+  const Mat3 R_WAb0 = X_WA.R * A.mass().X_MB.R;
+  PdgContext c{A,       X_WA,
+               B,       X_WB,
+               request, *data,
+               eps,     MetricDiagonal(A.mass()),
+               R_WAb0,  X_WA * A.mass().p_MC};
+  auto finish = [&](PdStatus status) {
+    result->status = status;
+    result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+  };
+
+  if (!Colliding(c, X_WA)) {
+    if (request.use_coherence) data->Remember({X_WA, X_WA, Vec6::Zero(), false});
+    // Keep PDt's coherence in step when it runs every query.
+    if (request.pdg_always_pdt_start) {
+      ComputePdt(A, X_WA, B, X_WB, request, &data->pdt, &data->pdt_result);
+    }
+    finish(PdStatus::kSeparated);
+    return;
+  }
+
+  // 1. Free start: the SE(3) coherence cache, else the PDt answer (a contact
+  // with the rotation unchanged).
+  Best best, pdt_best;
+  bool pdt_done = false;
+  const PenetrationResult& pdt = data->pdt_result;
+  auto run_pdt = [&] {
+    PenetrationRequest pdt_request = request;
+    pdt_request.compute_regions = false;
+    ComputePdt(A, X_WA, B, X_WB, pdt_request, &data->pdt, &data->pdt_result);
+    pdt_done = true;
+    if (pdt.status == PdStatus::kPenetratingSolved ||
+        pdt.status == PdStatus::kPenetratingCapReached) {
+      Accept(c, pdt.X_WA_result, &pdt_best);
+    }
+  };
+  Pose X_coh;
+  if (CoherentStart(c, &X_coh)) {
+    Accept(c, X_coh, &best);
+    data->best_features = data->ccd.features;
+  }
+  if (!best.valid || request.pdg_always_pdt_start) {
+    run_pdt();
+    if (pdt_best.valid && pdt_best.sigma < best.sigma) {
+      best = pdt_best;
+      FeaturesFromPdt(pdt, &data->best_features);
+    }
+  }
+  if (!best.valid) {
+    result->failure = pdt.status == PdStatus::kFailed
+                          ? "no free start: " + pdt.failure
+                          : "no free start (PDt found no contact, no coherent pose)";
+    finish(PdStatus::kFailed);
+    return;
+  }
+
+  // 2-5. Iterate: linearised contact space, exact QP, re-projection. A
+  // contact that brings no improvement still tells where the contact space
+  // curves away: its rows join the best contact's for up to two retries.
+  PdStatus status = PdStatus::kPenetratingCapReached;
+  bool have_extra = false;
+  Pose X_extra;
+  Vec6 z_extra = Vec6::Zero();
+  int retries = 0;
+  for (int it = 0; it < request.max_iterations; ++it) {
+    result->iterations = it + 1;
+    if (best.sigma <= 0) {
+      status = PdStatus::kPenetratingSolved;
+      break;
+    }
+    data->qp.Clear();
+    AddConstraints(c, data->best_features, best.X, best.z);
+    if (have_extra) AddConstraints(c, data->extra_features, X_extra, z_extra);
+    if (data->qp.size() == 0) {
+      status = PdStatus::kPenetratingSolved;
+      break;
+    }
+    Vec6 z_star;
+    if (data->qp.Solve(c.metric, &z_star) != QpStatus::kSolved) {
+      status = PdStatus::kPenetratingSolved;  // no better point in the local contact space
+      break;
+    }
+    const double sigma_star = Sigma(c, z_star);
+    if (sigma_star >= best.sigma * (1 - request.improvement_tolerance)) {
+      status = PdStatus::kPenetratingSolved;  // best is optimal in its contact space
+      break;
+    }
+    const Pose X_star = At(c, z_star);
+    Pose X_new;
+    bool found = false;
+    if (!Colliding(c, X_star)) {
+      // Free: out-project again towards the query pose.
+      found = OutProject(c, X_star, &X_new);
+    } else {
+      // In collision (the contact space curves away): keep z*'s rotation and
+      // back off by translation along the mean contact normal until free,
+      // then sweep back towards z* (exact translational CCD). Failing that,
+      // back off from the best contact and sweep towards z*'s centre of mass.
+      Vec3 n_avg = Vec3::Zero();
+      for (const FeaturePair& f : data->best_features) n_avg += f.n_W;
+      const bool have_normal = n_avg.norm() > 1e-12;
+      if (have_normal) {
+        n_avg.normalize();
+        for (double scale : {0.5, 2.0}) {
+          const double back = scale * std::sqrt(best.sigma) + 2 * eps;
+          const Pose X_back{X_star.R, X_star.t + n_avg * back};
+          Pose X_end;
+          if (!Colliding(c, X_back)) {
+            found = SweepTranslation(c, X_back, X_star, &X_new, &X_end);
+            break;
+          }
+        }
+      }
+      if (!found) {
+        Pose X_back = best.X;
+        if (have_normal) X_back.t += n_avg * (2 * eps);
+        if (!have_normal || Colliding(c, X_back)) {
+          const double motion = MotionLength(c, X_WA, best.X);
+          X_back = AlongAnswer(c, best.X, 1 + 2 * eps / std::max(motion, 1e-300));
+        }
+        Pose X_end;
+        found = !Colliding(c, X_back) && (SweepTranslation(c, X_back, X_star, &X_new, &X_end) ||
+                                          OutProject(c, X_end, &X_new));
+      }
+    }
+    if (!found || Sigma(c, Z(c, X_new)) >= best.sigma * (1 - request.improvement_tolerance)) {
+      if (found && retries < 2 && !data->ccd.features.empty()) {
+        ++retries;
+        have_extra = true;
+        X_extra = X_new;
+        z_extra = Z(c, X_new);
+        data->extra_features = data->ccd.features;
+        continue;
+      }
+      status = PdStatus::kPenetratingSolved;  // no improvement: local optimum
+      break;
+    }
+    Accept(c, X_new, &best);
+    data->best_features = data->ccd.features;
+  }
+
+  // Verified answer: a contact along its own motion; else the PDt answer.
+  if (!Polish(c, &best, &data->best_features)) {
+    if (!pdt_done) run_pdt();
+    if (pdt_best.valid) {
+      best = pdt_best;
+      FeaturesFromPdt(pdt, &data->best_features);
+    }
+  }
+
+  const Vec3 v = best.z.head<3>();
+  const double vn = v.norm();
+  result->sigma = best.sigma;
+  result->depth = std::sqrt(best.sigma);
+  result->translation_W = R_WAb0 * best.z.tail<3>();
+  result->X_WA_result = best.X;
+  result->rotation_angle = 2 * std::atan2(vn, std::sqrt(std::max(0.0, 1 - vn * vn)));
+  if (vn > 0) result->rotation_axis_W = R_WAb0 * (v / vn);
+  for (const FeaturePair& f : data->best_features) {
+    result->features.push_back({f.type, f.a, f.b, f.p_WB, f.n_W});
+  }
+  if (request.use_coherence) data->Remember({X_WA, best.X, best.z, true});
+  finish(status);
+}
+
+}  // namespace
+
+void ComputePdg(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+                const PenetrationRequest& request, PdgQueryData* data, PenetrationResult* result) {
+  const auto t0 = Clock::now();
+  if (!X_WA.R.allFinite() || !X_WA.t.allFinite() || !X_WB.R.allFinite() || !X_WB.t.allFinite()) {
+    ResetResult(X_WA, result);
+    result->status = PdStatus::kFailed;
+    result->failure = "non-finite pose (probe or scene body)";
+    result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+    return;
+  }
+  // Work in B's frame (as PDt): the answer depends only on the relative pose
+  // and the coherence cache is naturally relative to B.
+  const Pose X_BA = X_WB.Inverse() * X_WA;
+  PdgCore(A, X_BA, B, Pose::Identity(), request, data, result, t0);
+  result->translation_W = X_WB.R * result->translation_W;
+  result->X_WA_result = X_WB * result->X_WA_result;
+  result->rotation_axis_W = X_WB.R * result->rotation_axis_W;
+  for (ContactFeature& f : result->features) {
+    f.p_W = X_WB * f.p_W;
+    f.n_W = X_WB.R * f.n_W;
+  }
+}
+
+}  // namespace hapticpd::pd
