@@ -9,6 +9,9 @@ namespace hapticpd::cli {
 void RegisterVersion(CLI::App& app);
 void RegisterMeshInfo(CLI::App& app);
 void RegisterPd(CLI::App& app);
+void RegisterServe(CLI::App& app);
+void RegisterSceneOps(CLI::App& app);  // inject, move, remove, scene
+void RegisterWatchCouple(CLI::App& app);
 
 /// Thrown by a command to exit non-zero with a one-line reason on stderr.
 struct CommandError : std::runtime_error {

@@ -17,6 +17,9 @@ int main(int argc, char** argv) {
   hapticpd::cli::RegisterVersion(app);
   hapticpd::cli::RegisterMeshInfo(app);
   hapticpd::cli::RegisterPd(app);
+  hapticpd::cli::RegisterServe(app);
+  hapticpd::cli::RegisterSceneOps(app);
+  hapticpd::cli::RegisterWatchCouple(app);
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
   try {
     app.parse(argc, argv);

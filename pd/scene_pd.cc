@@ -6,8 +6,16 @@ namespace hapticpd::pd {
 
 void ComputeScenePdt(const GeometryModel& A, const Pose& X_WA, std::span<const SceneBody> bodies,
                      const PenetrationRequest& request, ScenePdData* data, ScenePdResult* result) {
+  ComputeScenePd(PdMode::kTranslational, A, X_WA, bodies, request, data, result);
+}
+
+void ComputeScenePd(PdMode mode, const GeometryModel& A, const Pose& X_WA,
+                    std::span<const SceneBody> bodies, const PenetrationRequest& request,
+                    ScenePdData* data, ScenePdResult* result) {
   const auto t0 = std::chrono::steady_clock::now();
-  if (data->per_body.size() != bodies.size()) data->Resize(bodies.size());
+  const bool pdg = mode == PdMode::kGeneralized;
+  if (!pdg && data->per_body.size() != bodies.size()) data->Resize(bodies.size());
+  if (pdg && data->per_body_pdg.size() != bodies.size()) data->per_body_pdg.resize(bodies.size());
   result->bodies.resize(bodies.size());
   result->tested.resize(bodies.size());
   result->wrench = Wrench{};
@@ -28,7 +36,10 @@ void ComputeScenePdt(const GeometryModel& A, const Pose& X_WA, std::span<const S
     if ((cA - cB).squaredNorm() > reach * reach * (1 + 1e-12)) {
       result->tested[i] = false;
       r.status = PdStatus::kSeparated;
+      r.mode = mode;
       r.depth = 0;
+      r.sigma = 0;
+      r.rotation_angle = 0;
       r.translation_W.setZero();
       r.X_WA_result = X_WA;
       r.features.clear();
@@ -38,10 +49,14 @@ void ComputeScenePdt(const GeometryModel& A, const Pose& X_WA, std::span<const S
       continue;
     }
     result->tested[i] = true;
-    ComputePdt(A, X_WA, B, body.X_WB, request, &data->per_body[i], &r);
+    if (pdg) {
+      ComputePdg(A, X_WA, B, body.X_WB, request, &data->per_body_pdg[i], &r);
+    } else {
+      ComputePdt(A, X_WA, B, body.X_WB, request, &data->per_body[i], &r);
+    }
     if (r.status == PdStatus::kSeparated || r.status == PdStatus::kFailed) continue;
     result->colliding = true;
-    const Wrench w = PenaltyWrench(r, body.material, p_WAcm);
+    const Wrench w = PdWrench(r, body.material, p_WAcm);
     result->wrench.force += w.force;
     result->wrench.torque += w.torque;
     if (r.depth > deepest) {

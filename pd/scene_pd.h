@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "pd/material.h"
+#include "pd/pdg.h"
 #include "pd/pdt.h"
 
 namespace hapticpd::pd {
@@ -17,12 +18,14 @@ struct SceneBody {
   Material material;
 };
 
-/// Per-session state: one PdQueryData (coherence cache) per body.
+/// Per-session state: one PdQueryData (PDt) and one PdgQueryData (PDg)
+/// coherence cache per body; only the method in use grows its own.
 class ScenePdData {
  public:
   /// Sizes the per-body state; call when the body list changes.
   void Resize(std::size_t bodies) { per_body.resize(bodies); }
   std::vector<PdQueryData> per_body;
+  std::vector<PdgQueryData> per_body_pdg;
 };
 
 struct ScenePdResult {
@@ -38,5 +41,12 @@ struct ScenePdResult {
 /// `result` to the body count (allocation happens only when it changes).
 void ComputeScenePdt(const GeometryModel& A, const Pose& X_WA, std::span<const SceneBody> bodies,
                      const PenetrationRequest& request, ScenePdData* data, ScenePdResult* result);
+
+/// PD of probe A against every body by either method: PDt as above, or PDg
+/// (ComputePdg per body; the wrench is the sum of PdgWrench over the bodies,
+/// `deepest` the body with the largest sqrt(sigma)).
+void ComputeScenePd(PdMode mode, const GeometryModel& A, const Pose& X_WA,
+                    std::span<const SceneBody> bodies, const PenetrationRequest& request,
+                    ScenePdData* data, ScenePdResult* result);
 
 }  // namespace hapticpd::pd

@@ -1,0 +1,94 @@
+// `hapticpd serve`: run the haptic rendering server until SIGINT/SIGTERM.
+#include <pthread.h>
+#include <signal.h>
+#include <spdlog/spdlog.h>
+
+#include <cstdlib>
+#include <iostream>
+#include <thread>
+
+#include "client/commands.h"
+#include "server/server.h"
+
+namespace hapticpd::cli {
+namespace {
+
+struct ServeOptions {
+  server::ServerOptions server;
+  std::string log_level = "info";
+};
+
+void RunServe(const ServeOptions& o) {
+  const auto level = spdlog::level::from_str(o.log_level);
+  if (level == spdlog::level::off && o.log_level != "off") {
+    throw CommandError("serve: --log-level: unknown level '" + o.log_level + "'");
+  }
+  spdlog::set_level(level);
+  // Block the signals in every thread (gRPC's inherit the mask) and take
+  // them synchronously below.
+  sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGINT);
+  sigaddset(&set, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &set, nullptr);
+  server::HapticServer srv(o.server);
+  try {
+    srv.Start();
+  } catch (const std::exception& e) {
+    throw CommandError(std::string("serve: ") + e.what());
+  }
+  int sig = 0;
+  sigwait(&set, &sig);
+  spdlog::info("received {}, shutting down", sig == SIGINT ? "SIGINT" : "SIGTERM");
+  // A second signal during shutdown exits at once.
+  std::thread second([&set] {
+    int s2 = 0;
+    sigwait(&set, &s2);
+    std::_Exit(130);
+  });
+  second.detach();
+  srv.Shutdown();
+}
+
+}  // namespace
+
+void RegisterServe(CLI::App& app) {
+  auto o = std::make_shared<ServeOptions>();
+  auto* cmd = app.add_subcommand("serve", "Run the haptic rendering server (gRPC)");
+  auto& s = o->server;
+  cmd->add_option("--listen", s.listen, "HOST:PORT to listen on (port 0: any free port)")
+      ->capture_default_str();
+  cmd->add_option("--tokens", s.tokens_file,
+                  "Token file (JSON) mapping tokens to roles per scene; without one the server "
+                  "runs open and only on loopback");
+  cmd->add_option("--tls-cert", s.tls_cert, "PEM certificate chain: serve over TLS")
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--tls-key", s.tls_key, "PEM private key for --tls-cert")
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--scene", s.scene_files,
+                  "Scene file (JSON) to preload; repeatable. Without one: an empty scene "
+                  "'default'")
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--status-interval", s.status_interval_s,
+                  "Seconds between status lines (0: none)")
+      ->capture_default_str();
+  cmd->add_option("--max-sessions", s.limits.max_sessions, "Device sessions at most")
+      ->capture_default_str();
+  cmd->add_option("--max-observers", s.limits.max_observers, "Observers at most")
+      ->capture_default_str();
+  cmd->add_option("--max-bodies", s.limits.max_bodies_per_scene, "Bodies per scene at most")
+      ->capture_default_str();
+  cmd->add_option("--max-scenes", s.limits.max_scenes, "Scenes at most")->capture_default_str();
+  cmd->add_option("--max-triangles", s.limits.max_mesh_triangles, "Triangles per mesh at most")
+      ->capture_default_str();
+  cmd->add_option("--max-mesh-bytes", s.limits.max_mesh_bytes, "Bytes per uploaded mesh file")
+      ->capture_default_str();
+  cmd->add_option("--max-message-bytes", s.limits.max_message_bytes,
+                  "Bytes per received gRPC message")
+      ->capture_default_str();
+  cmd->add_option("--log-level", o->log_level, "trace, debug, info, warn, error, off")
+      ->capture_default_str();
+  cmd->callback([o] { RunServe(*o); });
+}
+
+}  // namespace hapticpd::cli

@@ -1,0 +1,117 @@
+#include "client/rpc_util.h"
+
+#include <chrono>
+#include <cstdlib>
+#include <fstream>
+#include <sstream>
+#include <vector>
+
+#include "server/server.h"
+
+namespace hapticpd::cli {
+namespace {
+
+std::vector<double> ParseNumbers(const std::string& text, const std::string& option) {
+  std::vector<double> out;
+  std::stringstream ss(text);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    try {
+      std::size_t used = 0;
+      const double v = std::stod(item, &used);
+      if (used != item.size() && item.find_first_not_of(' ', used) != std::string::npos) throw 0;
+      out.push_back(v);
+    } catch (...) {
+      throw CommandError(option + ": '" + item + "' is not a number (in '" + text + "')");
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+void AddConnectionOptions(CLI::App* cmd, ConnectionOptions* o) {
+  if (const char* s = std::getenv("HAPTICPD_SERVER")) o->server = s;
+  if (const char* t = std::getenv("HAPTICPD_TOKEN")) o->token = t;
+  cmd->add_option("--server", o->server, "Server HOST:PORT (or $HAPTICPD_SERVER)")
+      ->capture_default_str();
+  cmd->add_option("--token", o->token, "Access token (or $HAPTICPD_TOKEN)");
+  cmd->add_flag("--tls", o->tls, "Connect with TLS, trusting the system's root CAs");
+  cmd->add_option("--tls-ca", o->tls_ca, "Connect with TLS, trusting this PEM CA certificate");
+  cmd->add_option("--timeout", o->timeout_s, "Seconds before a call gives up")
+      ->capture_default_str();
+}
+
+std::shared_ptr<grpc::Channel> MakeChannel(const ConnectionOptions& o) {
+  std::shared_ptr<grpc::ChannelCredentials> creds;
+  if (!o.tls_ca.empty() || o.tls) {
+    grpc::SslCredentialsOptions ssl;
+    if (!o.tls_ca.empty()) {
+      std::ifstream in(o.tls_ca);
+      if (!in) throw CommandError("--tls-ca: cannot open " + o.tls_ca);
+      std::ostringstream ss;
+      ss << in.rdbuf();
+      ssl.pem_root_certs = ss.str();
+    }
+    creds = grpc::SslCredentials(ssl);
+  } else {
+    creds = grpc::InsecureChannelCredentials();
+  }
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(256 << 20);
+  return grpc::CreateCustomChannel(o.server, creds, args);
+}
+
+std::unique_ptr<grpc::ClientContext> MakeContext(const ConnectionOptions& o, bool streaming) {
+  auto ctx = std::make_unique<grpc::ClientContext>();
+  if (!o.token.empty()) ctx->AddMetadata("authorization", "Bearer " + o.token);
+  if (!streaming && o.timeout_s > 0) {
+    ctx->set_deadline(std::chrono::system_clock::now() +
+                      std::chrono::milliseconds(static_cast<std::int64_t>(o.timeout_s * 1000)));
+  }
+  return ctx;
+}
+
+void Check(const grpc::Status& s, const std::string& cmd) {
+  if (s.ok()) return;
+  throw CommandError(cmd + ": " + server::StatusCodeName(s.error_code()) + ": " +
+                     s.error_message());
+}
+
+v1::Pose ParsePose(const std::string& text, const std::string& option) {
+  const auto v = ParseNumbers(text, option);
+  if (v.size() != 3 && v.size() != 7) {
+    throw CommandError(option + ": expected 'x,y,z' or 'x,y,z,qw,qx,qy,qz', got '" + text + "'");
+  }
+  v1::Pose p;
+  p.mutable_position()->set_x(v[0]);
+  p.mutable_position()->set_y(v[1]);
+  p.mutable_position()->set_z(v[2]);
+  if (v.size() == 7) {
+    auto* q = p.mutable_orientation();
+    q->set_w(v[3]);
+    q->set_x(v[4]);
+    q->set_y(v[5]);
+    q->set_z(v[6]);
+  }
+  return p;
+}
+
+v1::Twist ParseTwist(const std::string& text, const std::string& option) {
+  const auto v = ParseNumbers(text, option);
+  if (v.size() != 3 && v.size() != 6) {
+    throw CommandError(option + ": expected 'vx,vy,vz' or 'vx,vy,vz,wx,wy,wz', got '" + text + "'");
+  }
+  v1::Twist t;
+  t.mutable_linear()->set_x(v[0]);
+  t.mutable_linear()->set_y(v[1]);
+  t.mutable_linear()->set_z(v[2]);
+  if (v.size() == 6) {
+    t.mutable_angular()->set_x(v[3]);
+    t.mutable_angular()->set_y(v[4]);
+    t.mutable_angular()->set_z(v[5]);
+  }
+  return t;
+}
+
+}  // namespace hapticpd::cli

@@ -1,0 +1,41 @@
+// Shared plumbing of the network subcommands (inject, move, remove, scene,
+// watch, couple): connection options, channel, per-call context, parsing of
+// poses, and turning a gRPC status into a CommandError.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+
+#include <CLI/CLI.hpp>
+#include <memory>
+#include <string>
+
+#include "client/commands.h"
+#include "hapticpd/v1/types.pb.h"
+
+namespace hapticpd::cli {
+
+struct ConnectionOptions {
+  std::string server = "127.0.0.1:50051";
+  std::string token;   ///< also from $HAPTICPD_TOKEN
+  std::string tls_ca;  ///< PEM CA file: use TLS and trust this CA
+  bool tls = false;    ///< use TLS with the system's roots
+  double timeout_s = 30;
+};
+
+/// Adds --server, --token, --tls, --tls-ca, --timeout to `cmd`.
+void AddConnectionOptions(CLI::App* cmd, ConnectionOptions* o);
+
+std::shared_ptr<grpc::Channel> MakeChannel(const ConnectionOptions& o);
+/// A context carrying the token and (unless `streaming`) the deadline.
+std::unique_ptr<grpc::ClientContext> MakeContext(const ConnectionOptions& o,
+                                                 bool streaming = false);
+
+/// Throws CommandError "CMD: CODE: message" for a non-OK status.
+void Check(const grpc::Status& s, const std::string& cmd);
+
+/// "x,y,z" or "x,y,z,qw,qx,qy,qz" (metres; unit quaternion w, x, y, z).
+v1::Pose ParsePose(const std::string& text, const std::string& option);
+/// "vx,vy,vz" or "vx,vy,vz,wx,wy,wz".
+v1::Twist ParseTwist(const std::string& text, const std::string& option);
+
+}  // namespace hapticpd::cli

@@ -1,0 +1,95 @@
+// State shared by the services of one server (internal to server/).
+#pragma once
+
+#include <grpcpp/support/status.h>
+#include <spdlog/spdlog.h>
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <set>
+#include <thread>
+
+#include "server/auth.h"
+#include "server/scene.h"
+#include "server/server.h"
+#include "server/stats.h"
+
+namespace hapticpd::server::internal {
+
+/// The server's logger ("server"), sharing the default logger's sinks.
+std::shared_ptr<spdlog::logger> Log();
+
+/// A small pool that runs mesh parsing and BVH builds off the gRPC threads
+/// and off the haptic path.
+class JobQueue {
+ public:
+  explicit JobQueue(int threads);
+  ~JobQueue();
+  /// False after Stop() (the job is not run).
+  bool Submit(std::function<void()> job);
+  /// Runs the queued jobs, then joins the threads.
+  void Stop();
+
+ private:
+  void Loop();
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<std::function<void()>> jobs_;
+  bool stopping_ = false;
+  std::vector<std::thread> threads_;
+};
+
+/// A streaming call the server can end early (shutdown, scene deleted).
+class StoppableCall {
+ public:
+  virtual ~StoppableCall() = default;
+  /// Ends the call with `status` as soon as possible. Thread-safe, idempotent.
+  virtual void Stop(const grpc::Status& status) = 0;
+  virtual const Scene* scene() const = 0;
+};
+
+class ObserverHub;
+
+struct Core {
+  explicit Core(const Limits& l) : limits(l), builds(1) {}
+
+  Limits limits;
+  TokenStore tokens;
+  ChangeSignal signal;
+  SceneRegistry scenes{&signal};
+  Stats stats;
+  JobQueue builds;
+  ObserverHub* hub = nullptr;
+  std::atomic<bool> shutting_down{false};
+  std::atomic<int> sessions{0};
+  std::atomic<int> observers{0};
+
+  /// Every live reactor that is not a unary default reactor registers here
+  /// from its constructor to its OnDone.
+  void Register(StoppableCall* call);
+  void Unregister(StoppableCall* call);
+  /// Stops the calls on `scene` (every call when null).
+  void StopCalls(const Scene* scene, const grpc::Status& status);
+  int active_calls() const;
+  /// Waits until no call is registered or `timeout` passes; true when none is left.
+  bool WaitNoCalls(std::chrono::milliseconds timeout);
+
+  grpc::Status Unavailable() const {
+    return grpc::Status(grpc::StatusCode::UNAVAILABLE, "server is shutting down");
+  }
+
+ private:
+  mutable std::mutex calls_mu_;
+  std::condition_variable calls_cv_;
+  std::set<StoppableCall*> calls_;
+};
+
+/// Whether `mode` can be served now. PDg answers UNIMPLEMENTED until
+/// pd::ComputePdg lands (a one-line change here).
+grpc::Status CheckModeSupported(int mode);
+
+}  // namespace hapticpd::server::internal

@@ -1,0 +1,219 @@
+#include "server/observers.h"
+
+#include "server/convert.h"
+
+namespace hapticpd::server::internal {
+
+using Clock = std::chrono::steady_clock;
+
+void FillBody(const BodyState& b, bool include_mesh, v1::Body* out) {
+  out->set_body_id(b.id);
+  ToProto(b.X_WB, out->mutable_pose());
+  ToProto(b.v_W, out->mutable_velocity()->mutable_linear());
+  ToProto(b.w_W, out->mutable_velocity()->mutable_angular());
+  ToProto(b.material, out->mutable_material());
+  out->set_movable(b.movable);
+  out->set_label(b.label);
+  const pd::Mesh& m = b.model->mesh();
+  auto* info = out->mutable_mesh_info();
+  info->set_triangles(static_cast<std::uint32_t>(m.num_triangles()));
+  info->set_vertices(static_cast<std::uint32_t>(m.num_vertices()));
+  info->set_watertight(m.watertight());
+  info->set_convex(b.model->convex());
+  ToProto(m.bounds().lo, info->mutable_aabb_min());
+  ToProto(m.bounds().hi, info->mutable_aabb_max());
+  ToProto(b.model->mass().p_MC, info->mutable_center_of_mass());
+  info->set_bounding_radius(m.bounding_radius());
+  for (const auto& d : m.diagnostics()) info->add_diagnostics(d);
+  if (include_mesh) ToProto(m, out->mutable_mesh());
+}
+
+void FillScene(const Scene& scene, const SceneSnapshot& snap, bool include_meshes, v1::Scene* out) {
+  out->set_scene_id(scene.id());
+  out->set_description(scene.description());
+  out->set_revision(snap.revision);
+  for (const BodyState& b : snap.bodies) FillBody(b, include_meshes, out->add_bodies());
+}
+
+ObserverHub::ObserverHub(Core* core) : core_(core) {
+  thread_ = std::thread([this] { Loop(); });
+}
+
+ObserverHub::~ObserverHub() { Stop(); }
+
+void ObserverHub::Add(WatchReactor* r) {
+  {
+    std::lock_guard lock(mu_);
+    observers_.push_back(r);
+  }
+  core_->signal.Notify();
+}
+
+void ObserverHub::Remove(WatchReactor* r) {
+  std::lock_guard lock(mu_);
+  std::erase(observers_, r);
+}
+
+void ObserverHub::Stop() {
+  stop_.store(true);
+  core_->signal.Notify();
+  if (thread_.joinable()) thread_.join();
+}
+
+void ObserverHub::Loop() {
+  std::uint64_t seen = core_->signal.count();
+  while (!stop_.load()) {
+    const auto now = Clock::now();
+    auto next = now + std::chrono::milliseconds(100);
+    {
+      std::lock_guard lock(mu_);
+      for (WatchReactor* r : observers_) next = std::min(next, r->Tick(now));
+    }
+    seen = core_->signal.WaitFor(seen, std::max(next, now + std::chrono::microseconds(200)));
+  }
+}
+
+namespace {
+std::chrono::nanoseconds PeriodOf(double rate_hz) {
+  if (rate_hz <= 0) rate_hz = 60;
+  return std::chrono::nanoseconds(static_cast<std::int64_t>(1e9 / rate_hz));
+}
+}  // namespace
+
+WatchReactor::WatchReactor(Core* core, ScenePtr scene, const v1::WatchRequest& request)
+    : core_(core),
+      scene_(std::move(scene)),
+      period_(PeriodOf(request.rate_hz())),
+      include_meshes_(request.include_meshes()) {
+  core_->Register(this);  // core_->observers was counted by SceneServiceImpl::Watch
+  ++scene_->observers;
+  core_->hub->Add(this);
+}
+
+Clock::time_point WatchReactor::Tick(Clock::time_point now) {
+  std::unique_lock lock(mu_);
+  if (finish_called_ || finish_wanted_) return now + std::chrono::hours(1);
+  if (scene_->deleted()) {
+    bool call = false;
+    FinishLocked(
+        grpc::Status(grpc::StatusCode::NOT_FOUND, "scene '" + scene_->id() + "' was deleted"),
+        false, &call);
+    lock.unlock();
+    if (call) Finish(finish_status_);
+    return now + std::chrono::hours(1);
+  }
+  const SnapshotPtr snap = scene_->snapshot();
+  const bool structural = last_ == nullptr || snap->structure_revision != last_->structure_revision;
+  const bool pose_due = now >= next_pose_due_;
+  if (!structural && !pose_due) return next_pose_due_;
+  if (in_flight_) {
+    // The observer has not taken the previous frame: skip this one.
+    if (pose_due) {
+      ++dropped_;
+      core_->stats.observer_frames_dropped.fetch_add(1, std::memory_order_relaxed);
+      next_pose_due_ = now + period_;
+    }
+    return next_pose_due_;
+  }
+  msg_.Clear();
+  msg_.set_revision(snap->revision);
+  msg_.set_server_time_ns(NowNs());
+  msg_.set_frames_dropped(dropped_);
+  if (last_ == nullptr) {
+    FillScene(*scene_, *snap, include_meshes_, msg_.mutable_snapshot());
+  } else if (structural) {
+    auto* ch = msg_.mutable_changes();
+    for (const BodyState& b : snap->bodies) {
+      const BodyState* old = last_->Find(b.id);
+      if (old == nullptr || old->uid != b.uid) FillBody(b, include_meshes_, ch->add_added());
+    }
+    for (const BodyState& b : last_->bodies) {
+      const BodyState* now_b = snap->Find(b.id);
+      if (now_b == nullptr || now_b->uid != b.uid) ch->add_removed(b.id);
+    }
+  } else {
+    auto* poses = msg_.mutable_poses();
+    for (const BodyState& b : snap->bodies) {
+      auto* bp = poses->add_bodies();
+      bp->set_body_id(b.id);
+      ToProto(b.X_WB, bp->mutable_pose());
+      ToProto(b.v_W, bp->mutable_velocity()->mutable_linear());
+      ToProto(b.w_W, bp->mutable_velocity()->mutable_angular());
+    }
+    scene_->CopyProbes(&probes_);
+    for (const auto& p : probes_) {
+      auto* ps = poses->add_probes();
+      ps->set_session_id(p.session_id);
+      ToProto(p.X_WA, ps->mutable_pose());
+      ToProto(p.force_W, ps->mutable_force());
+      ps->set_depth(p.depth);
+      ps->set_sequence(p.sequence);
+    }
+    next_pose_due_ = now + period_;
+  }
+  last_ = snap;
+  in_flight_ = true;
+  core_->stats.observer_frames_sent.fetch_add(1, std::memory_order_relaxed);
+  // Under mu_: a forced Finish (cancellation) cannot slip in between.
+  StartWrite(&msg_);
+  return next_pose_due_;
+}
+
+void WatchReactor::FinishLocked(const grpc::Status& status, bool force, bool* call_finish) {
+  *call_finish = false;
+  if (finish_called_) return;
+  if (!finish_wanted_) {
+    finish_wanted_ = true;
+    finish_status_ = status;
+  }
+  if (!in_flight_ || force) {
+    finish_called_ = true;
+    *call_finish = true;
+  }
+}
+
+void WatchReactor::Stop(const grpc::Status& status) {
+  bool call = false;
+  {
+    std::lock_guard lock(mu_);
+    FinishLocked(status, false, &call);
+  }
+  if (call) Finish(finish_status_);
+}
+
+void WatchReactor::OnWriteDone(bool ok) {
+  bool call = false;
+  {
+    std::lock_guard lock(mu_);
+    in_flight_ = false;
+    if (!ok) {
+      FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "observer went away"), true, &call);
+    } else if (finish_wanted_) {
+      FinishLocked(finish_status_, true, &call);
+    }
+  }
+  if (call) {
+    Finish(finish_status_);
+  } else {
+    core_->signal.Notify();  // a structural change may be waiting for this observer
+  }
+}
+
+void WatchReactor::OnCancel() {
+  bool call = false;
+  {
+    std::lock_guard lock(mu_);
+    FinishLocked(grpc::Status::CANCELLED, true, &call);
+  }
+  if (call) Finish(finish_status_);
+}
+
+void WatchReactor::OnDone() {
+  core_->hub->Remove(this);
+  --scene_->observers;
+  --core_->observers;
+  core_->Unregister(this);
+  delete this;
+}
+
+}  // namespace hapticpd::server::internal

@@ -1,0 +1,79 @@
+// Observer fan-out. Each Watch call is a WatchReactor; one publisher thread
+// (the ObserverHub) visits every observer when a scene changes or an
+// observer's next pose frame is due. An observer's next frame is derived from
+// the newest scene snapshot when it is ready to take one (latest value,
+// never a queue): a slow observer has at most one write in flight and skips
+// pose frames, and the hub never blocks on it, so it slows neither device
+// sessions nor other observers.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "hapticpd/v1/scene.grpc.pb.h"
+#include "server/core.h"
+
+namespace hapticpd::server::internal {
+
+/// Fills a v1::Body from a body state.
+void FillBody(const BodyState& b, bool include_mesh, v1::Body* out);
+/// Fills a v1::Scene from a snapshot.
+void FillScene(const Scene& scene, const SceneSnapshot& snap, bool include_meshes, v1::Scene* out);
+
+class WatchReactor;
+
+class ObserverHub {
+ public:
+  explicit ObserverHub(Core* core);
+  ~ObserverHub();
+  void Add(WatchReactor* r);
+  void Remove(WatchReactor* r);
+  void Stop();
+
+ private:
+  void Loop();
+  Core* core_;
+  std::mutex mu_;
+  std::vector<WatchReactor*> observers_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+class WatchReactor final : public grpc::ServerWriteReactor<v1::SceneEvent>, public StoppableCall {
+ public:
+  WatchReactor(Core* core, ScenePtr scene, const v1::WatchRequest& request);
+
+  /// Called by the hub: writes the next frame if one is due and no write is
+  /// in flight. Returns when the next pose frame is due.
+  std::chrono::steady_clock::time_point Tick(std::chrono::steady_clock::time_point now);
+
+  void Stop(const grpc::Status& status) override;
+  const Scene* scene() const override { return scene_.get(); }
+
+ private:
+  void OnWriteDone(bool ok) override;
+  void OnCancel() override;
+  void OnDone() override;
+  /// Under mu_: Finish once, now if no write is in flight, else after it.
+  void FinishLocked(const grpc::Status& status, bool force, bool* call_finish);
+
+  Core* core_;
+  ScenePtr scene_;
+  const std::chrono::nanoseconds period_;
+  const bool include_meshes_;
+  std::mutex mu_;
+  bool in_flight_ = false;
+  bool finish_called_ = false;
+  bool finish_wanted_ = false;
+  grpc::Status finish_status_;
+  SnapshotPtr last_;  ///< the snapshot the observer last saw (null: nothing sent)
+  std::chrono::steady_clock::time_point next_pose_due_{};
+  std::uint64_t dropped_ = 0;
+  v1::SceneEvent msg_;
+  std::vector<Scene::ProbeCopy> probes_;
+};
+
+}  // namespace hapticpd::server::internal

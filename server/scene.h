@@ -1,0 +1,149 @@
+// Scenes and their immutable snapshots.
+//
+// A Scene publishes its state as an immutable SceneSnapshot through an atomic
+// shared pointer: readers (PD workers, observers) load the current snapshot
+// once per frame and never wait on a writer; writers (AddBody, MoveBody,
+// RemoveBody) are serialised among themselves, copy the body list (meshes and
+// BVHs are shared, never copied), change the copy and publish it.
+#pragma once
+
+#include <grpcpp/support/status.h>
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "pd/geometry_model.h"
+#include "pd/material.h"
+#include "pd/types.h"
+
+namespace hapticpd::server {
+
+struct BodyState {
+  std::uint64_t uid = 0;  ///< unique in this server process, never reused
+  std::string id;         ///< unique in the scene
+  std::string label;
+  pd::ModelPtr model;
+  Pose X_WB;
+  Vec3 v_W = Vec3::Zero();  ///< linear velocity (m/s), informational
+  Vec3 w_W = Vec3::Zero();  ///< angular velocity (rad/s), informational
+  pd::Material material;
+  bool movable = false;
+};
+
+struct SceneSnapshot {
+  std::uint64_t revision = 0;            ///< bumps on every change
+  std::uint64_t structure_revision = 0;  ///< bumps when a body is added or removed
+  std::vector<BodyState> bodies;
+
+  const BodyState* Find(const std::string& id) const;
+};
+
+using SnapshotPtr = std::shared_ptr<const SceneSnapshot>;
+
+/// Wakes whoever waits for scene changes (the observer publisher).
+class ChangeSignal {
+ public:
+  void Notify();
+  /// Waits until notified after `seen` or until `deadline`; returns the
+  /// current count.
+  std::uint64_t WaitFor(std::uint64_t seen, std::chrono::steady_clock::time_point deadline);
+  std::uint64_t count() const { return count_.load(); }
+
+ private:
+  std::mutex mu_;
+  std::condition_variable cv_;
+  std::atomic<std::uint64_t> count_{0};
+};
+
+/// The latest answered probe pose of a device session, shown to observers.
+struct ProbeSlot {
+  std::string session_id;
+  std::mutex mu;
+  bool valid = false;
+  Pose X_WA;
+  Vec3 force_W = Vec3::Zero();
+  double depth = 0;
+  std::uint64_t sequence = 0;
+};
+
+class Scene {
+ public:
+  Scene(std::string id, std::string description, ChangeSignal* signal);
+
+  const std::string& id() const { return id_; }
+  const std::string& description() const { return description_; }
+
+  /// The current snapshot (never null). Lock-free for readers in practice.
+  SnapshotPtr snapshot() const { return snapshot_.load(std::memory_order_acquire); }
+
+  /// Adds a body; assigns "body-N" when body.id is empty. ALREADY_EXISTS on a
+  /// duplicate id, RESOURCE_EXHAUSTED beyond `max_bodies`.
+  grpc::Status AddBody(BodyState body, std::size_t max_bodies, BodyState* added);
+  /// NOT_FOUND, FAILED_PRECONDITION (static body) or OK with the new revision.
+  grpc::Status MoveBody(const std::string& id, const Pose& X_WB, const Vec3* v_W, const Vec3* w_W,
+                        std::uint64_t* revision);
+  grpc::Status RemoveBody(const std::string& id, std::uint64_t* revision);
+
+  bool deleted() const { return deleted_.load(std::memory_order_acquire); }
+  void MarkDeleted();
+
+  std::atomic<int> sessions{0};
+  std::atomic<int> observers{0};
+
+  void AddProbe(std::shared_ptr<ProbeSlot> slot);
+  void RemoveProbe(const ProbeSlot* slot);
+  /// Copies of the probes' latest states.
+  struct ProbeCopy {
+    std::string session_id;
+    Pose X_WA;
+    Vec3 force_W;
+    double depth;
+    std::uint64_t sequence;
+  };
+  void CopyProbes(std::vector<ProbeCopy>* out) const;
+
+ private:
+  void Publish(std::shared_ptr<SceneSnapshot> next);
+
+  const std::string id_;
+  const std::string description_;
+  ChangeSignal* signal_;
+  std::atomic<SnapshotPtr> snapshot_;
+  std::mutex write_mu_;  // serialises writers; never taken by readers
+  std::uint64_t next_body_number_ = 1;
+  std::atomic<bool> deleted_{false};
+  mutable std::mutex probes_mu_;
+  std::vector<std::shared_ptr<ProbeSlot>> probes_;
+};
+
+using ScenePtr = std::shared_ptr<Scene>;
+
+/// All scenes of a server, by id.
+class SceneRegistry {
+ public:
+  explicit SceneRegistry(ChangeSignal* signal) : signal_(signal) {}
+
+  /// ALREADY_EXISTS, RESOURCE_EXHAUSTED (more than `max_scenes`) or OK.
+  grpc::Status Create(const std::string& id, const std::string& description, std::size_t max_scenes,
+                      ScenePtr* out);
+  ScenePtr Get(const std::string& id) const;
+  /// Removes the scene from the registry and marks it deleted; null when absent.
+  ScenePtr Remove(const std::string& id);
+  std::vector<ScenePtr> List() const;
+
+  std::uint64_t NextBodyUid() { return next_uid_.fetch_add(1); }
+
+ private:
+  ChangeSignal* signal_;
+  mutable std::mutex mu_;
+  std::map<std::string, ScenePtr> scenes_;
+  std::atomic<std::uint64_t> next_uid_{1};
+};
+
+}  // namespace hapticpd::server

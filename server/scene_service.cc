@@ -1,0 +1,377 @@
+#include <grpcpp/grpcpp.h>
+
+#include "server/convert.h"
+#include "server/observers.h"
+#include "server/services.h"
+
+namespace hapticpd::server::internal {
+namespace {
+
+grpc::ServerUnaryReactor* Done(grpc::CallbackServerContext* ctx, const grpc::Status& s) {
+  auto* r = ctx->DefaultReactor();
+  r->Finish(s);
+  return r;
+}
+
+/// Receives a body upload, then builds it on the build queue.
+class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
+                             public StoppableCall {
+ public:
+  AddBodyReactor(Core* core, grpc::CallbackServerContext* ctx, v1::Body* resp)
+      : core_(core), ctx_(ctx), resp_(resp) {
+    core_->Register(this);
+    if (core_->shutting_down.load()) {
+      FinishOnce(core_->Unavailable());
+      return;
+    }
+    StartRead(&req_);
+  }
+
+  void Stop(const grpc::Status& status) override {
+    std::lock_guard lock(mu_);
+    if (!submitted_) FinishOnceLocked(status);
+  }
+  const Scene* scene() const override { return nullptr; }
+
+ private:
+  void OnReadDone(bool ok) override {
+    std::lock_guard lock(mu_);
+    if (finished_) return;
+    if (!ok) {
+      OnComplete();
+      return;
+    }
+    grpc::Status s = Take();
+    if (!s.ok()) {
+      FinishOnceLocked(s);
+      return;
+    }
+    StartRead(&req_);
+  }
+
+  /// Handles one message (under mu_).
+  grpc::Status Take() {
+    if (req_.has_header()) {
+      if (have_header_) return InvalidArgument("header", "sent twice (send it first, once)");
+      have_header_ = true;
+      header_.Swap(req_.mutable_header());
+      ScenePtr scene;
+      if (auto s = ResolveScene(core_, *ctx_, header_.scene_id(), Role::kInject, &scene); !s.ok())
+        return s;
+      scene_ = scene;
+      if (auto s = ValidateSpec(header_.spec(), "header.spec"); !s.ok()) return s;
+      if (scene_->snapshot()->bodies.size() >= core_->limits.max_bodies_per_scene) {
+        return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                            "scene '" + scene_->id() + "' already holds the server limit of " +
+                                std::to_string(core_->limits.max_bodies_per_scene) + " bodies");
+      }
+      if (header_.mesh_case() == v1::AddBodyHeader::MESH_NOT_SET) {
+        return InvalidArgument("header.mesh", "give a format (then chunks), inline_mesh or shape");
+      }
+      if (header_.mesh_case() == v1::AddBodyHeader::kFormat &&
+          (header_.format() == v1::MESH_FORMAT_UNSPECIFIED ||
+           !v1::MeshFormat_IsValid(header_.format()))) {
+        return InvalidArgument("header.format", "unspecified or unknown mesh format");
+      }
+      if (header_.total_bytes() > core_->limits.max_mesh_bytes) {
+        return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                            "header.total_bytes: " + std::to_string(header_.total_bytes()) +
+                                " bytes exceed the server limit of " +
+                                std::to_string(core_->limits.max_mesh_bytes));
+      }
+      return grpc::Status::OK;
+    }
+    if (req_.has_chunk()) {
+      if (!have_header_) return InvalidArgument("header", "must be the first message");
+      if (header_.mesh_case() != v1::AddBodyHeader::kFormat) {
+        return InvalidArgument("chunk", "file bytes sent for a body given inline or as a shape");
+      }
+      if (bytes_.size() + req_.chunk().size() > core_->limits.max_mesh_bytes) {
+        return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                            "chunk: the mesh exceeds the server limit of " +
+                                std::to_string(core_->limits.max_mesh_bytes) + " bytes");
+      }
+      bytes_ += req_.chunk();
+      return grpc::Status::OK;
+    }
+    return InvalidArgument("part", "empty AddBodyRequest (neither header nor chunk)");
+  }
+
+  /// The client half-closed: build the body off this thread (under mu_).
+  void OnComplete() {
+    if (!have_header_) {
+      FinishOnceLocked(InvalidArgument("header", "missing (the stream was empty)"));
+      return;
+    }
+    if (ctx_->IsCancelled()) {
+      FinishOnceLocked(grpc::Status::CANCELLED);
+      return;
+    }
+    submitted_ = true;
+    const bool queued = core_->builds.Submit([this] { Build(); });
+    if (!queued) {
+      submitted_ = false;
+      FinishOnceLocked(core_->Unavailable());
+    }
+  }
+
+  void Build() {
+    grpc::Status s;
+    std::optional<pd::Mesh> mesh;
+    const std::size_t max_tris = core_->limits.max_mesh_triangles;
+    switch (header_.mesh_case()) {
+      case v1::AddBodyHeader::kFormat:
+        s = MeshFromBytes(bytes_, header_.format(), "chunk", max_tris, &mesh);
+        break;
+      case v1::AddBodyHeader::kInlineMesh:
+        s = MeshFromInline(header_.inline_mesh(), "header.inline_mesh", max_tris, &mesh);
+        break;
+      case v1::AddBodyHeader::kShape:
+        s = MeshFromShape(header_.shape(), "header.shape", max_tris, &mesh);
+        break;
+      default:
+        s = InvalidArgument("header.mesh", "missing");
+    }
+    std::string().swap(bytes_);
+    BodyState body;
+    if (s.ok()) s = MakeBody(core_, header_.spec(), "header.spec", std::move(*mesh), &body);
+    if (s.ok() && core_->shutting_down.load()) s = core_->Unavailable();
+    BodyState added;
+    if (s.ok()) s = scene_->AddBody(std::move(body), core_->limits.max_bodies_per_scene, &added);
+    if (s.ok()) {
+      FillBody(added, false, resp_);
+      Log()->info("scene '{}': added body '{}' ({} triangles)", scene_->id(), added.id,
+                  added.model->mesh().num_triangles());
+    } else {
+      Log()->info("scene '{}': AddBody rejected: {}", header_.scene_id(), s.error_message());
+    }
+    {
+      std::lock_guard lock(mu_);
+      if (finished_) return;
+      finished_ = true;
+    }
+    // Outside the lock and the last touch of `this`: OnDone may run (and
+    // delete this reactor) on another thread as soon as Finish is called.
+    Finish(s);
+  }
+
+  /// Only from reactions (OnReadDone) or under Core::StopCalls' lock, where
+  /// OnDone cannot run before the caller has let go of mu_.
+  void FinishOnceLocked(const grpc::Status& s) {
+    if (finished_) return;
+    finished_ = true;
+    Finish(s);
+  }
+  void FinishOnce(const grpc::Status& s) {
+    {
+      std::lock_guard lock(mu_);
+      if (finished_) return;
+      finished_ = true;
+    }
+    // Outside the lock and the last touch of `this`: OnDone may run (and
+    // delete this reactor) on another thread as soon as Finish is called.
+    Finish(s);
+  }
+
+  void OnDone() override {
+    core_->Unregister(this);
+    delete this;
+  }
+
+  Core* core_;
+  grpc::CallbackServerContext* ctx_;
+  v1::Body* resp_;
+  std::mutex mu_;
+  bool finished_ = false;
+  bool submitted_ = false;
+  bool have_header_ = false;
+  v1::AddBodyRequest req_;
+  v1::AddBodyHeader header_;
+  std::string bytes_;
+  ScenePtr scene_;
+};
+
+}  // namespace
+
+grpc::Status ResolveScene(Core* core, const grpc::ServerContextBase& ctx, const std::string& id,
+                          Role role, ScenePtr* out) {
+  if (auto s = core->tokens.CheckAnyToken(ctx); !s.ok()) return s;
+  if (id.empty()) return InvalidArgument("scene_id", "is empty");
+  // Permission first: a caller without rights learns nothing about which scenes exist.
+  if (auto s = core->tokens.Check(ctx, id, role); !s.ok()) return s;
+  ScenePtr scene = core->scenes.Get(id);
+  if (!scene) return grpc::Status(grpc::StatusCode::NOT_FOUND, "scene_id: no scene '" + id + "'");
+  *out = std::move(scene);
+  return grpc::Status::OK;
+}
+
+grpc::Status ValidateSpec(const v1::BodySpec& spec, std::string_view field) {
+  const std::string f(field);
+  if (!spec.body_id().empty()) {
+    if (auto s = ValidateId(spec.body_id(), f + ".body_id"); !s.ok()) return s;
+  }
+  Pose X;
+  if (auto s = FromProto(spec.pose(), f + ".pose", &X); !s.ok()) return s;
+  if (spec.has_material()) {
+    pd::Material m;
+    if (auto s = FromProto(spec.material(), f + ".material", &m); !s.ok()) return s;
+  }
+  if (spec.has_velocity()) {
+    if (auto s = ValidateTwist(spec.velocity(), f + ".velocity"); !s.ok()) return s;
+  }
+  if (spec.label().size() > 256) return InvalidArgument(f + ".label", "is longer than 256 bytes");
+  return grpc::Status::OK;
+}
+
+grpc::Status MakeBody(Core* core, const v1::BodySpec& spec, std::string_view field, pd::Mesh mesh,
+                      BodyState* out) {
+  const std::string f(field);
+  if (auto s = ValidateSpec(spec, field); !s.ok()) return s;
+  BodyState b;
+  b.uid = core->scenes.NextBodyUid();
+  b.id = spec.body_id();
+  b.label = spec.label();
+  (void)FromProto(spec.pose(), f + ".pose", &b.X_WB);
+  if (spec.has_material()) (void)FromProto(spec.material(), f + ".material", &b.material);
+  if (spec.has_velocity()) {
+    (void)FromProto(spec.velocity().linear(), "v", &b.v_W);
+    (void)FromProto(spec.velocity().angular(), "w", &b.w_W);
+  }
+  b.movable = spec.movable();
+  b.model = pd::MakeModel(std::move(mesh));  // BVH and mass properties: off the haptic path
+  *out = std::move(b);
+  return grpc::Status::OK;
+}
+
+grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerContext* ctx,
+                                                        const v1::CreateSceneRequest* req,
+                                                        v1::SceneSummary* resp) {
+  if (core_->shutting_down.load()) return Done(ctx, core_->Unavailable());
+  if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
+  if (auto s = ValidateId(req->scene_id(), "scene_id"); !s.ok()) return Done(ctx, s);
+  if (req->description().size() > 1024) {
+    return Done(ctx, InvalidArgument("description", "is longer than 1024 bytes"));
+  }
+  if (auto s = core_->tokens.Check(*ctx, req->scene_id(), Role::kAdmin); !s.ok())
+    return Done(ctx, s);
+  ScenePtr scene;
+  if (auto s = core_->scenes.Create(req->scene_id(), req->description(), core_->limits.max_scenes,
+                                    &scene);
+      !s.ok()) {
+    return Done(ctx, s);
+  }
+  resp->set_scene_id(scene->id());
+  resp->set_description(scene->description());
+  Log()->info("created scene '{}'", scene->id());
+  return Done(ctx, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* SceneServiceImpl::ListScenes(grpc::CallbackServerContext* ctx,
+                                                       const v1::ListScenesRequest*,
+                                                       v1::ListScenesResponse* resp) {
+  if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
+  for (const ScenePtr& s : core_->scenes.List()) {
+    if (!core_->tokens.CanSee(*ctx, s->id())) continue;
+    auto* sum = resp->add_scenes();
+    const SnapshotPtr snap = s->snapshot();
+    sum->set_scene_id(s->id());
+    sum->set_description(s->description());
+    sum->set_bodies(static_cast<std::uint32_t>(snap->bodies.size()));
+    sum->set_sessions(static_cast<std::uint32_t>(std::max(0, s->sessions.load())));
+    sum->set_observers(static_cast<std::uint32_t>(std::max(0, s->observers.load())));
+    sum->set_revision(snap->revision);
+  }
+  return Done(ctx, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* SceneServiceImpl::GetScene(grpc::CallbackServerContext* ctx,
+                                                     const v1::GetSceneRequest* req,
+                                                     v1::Scene* resp) {
+  ScenePtr scene;
+  if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kObserve, &scene); !s.ok())
+    return Done(ctx, s);
+  FillScene(*scene, *scene->snapshot(), req->include_meshes(), resp);
+  return Done(ctx, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* SceneServiceImpl::DeleteScene(grpc::CallbackServerContext* ctx,
+                                                        const v1::DeleteSceneRequest* req,
+                                                        v1::DeleteSceneResponse*) {
+  ScenePtr scene;
+  if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kAdmin, &scene); !s.ok())
+    return Done(ctx, s);
+  if (!core_->scenes.Remove(req->scene_id())) {
+    return Done(ctx, grpc::Status(grpc::StatusCode::NOT_FOUND,
+                                  "scene_id: no scene '" + req->scene_id() + "'"));
+  }
+  core_->StopCalls(scene.get(), grpc::Status(grpc::StatusCode::NOT_FOUND,
+                                             "scene '" + scene->id() + "' was deleted"));
+  Log()->info("deleted scene '{}'", scene->id());
+  return Done(ctx, grpc::Status::OK);
+}
+
+grpc::ServerReadReactor<v1::AddBodyRequest>* SceneServiceImpl::AddBody(
+    grpc::CallbackServerContext* ctx, v1::Body* resp) {
+  return new AddBodyReactor(core_, ctx, resp);
+}
+
+grpc::ServerUnaryReactor* SceneServiceImpl::MoveBody(grpc::CallbackServerContext* ctx,
+                                                     const v1::MoveBodyRequest* req,
+                                                     v1::MoveBodyResponse* resp) {
+  ScenePtr scene;
+  if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kInject, &scene); !s.ok())
+    return Done(ctx, s);
+  if (auto s = ValidateId(req->body_id(), "body_id"); !s.ok()) return Done(ctx, s);
+  Pose X_WB;
+  if (auto s = FromProto(req->pose(), "pose", &X_WB); !s.ok()) return Done(ctx, s);
+  Vec3 v = Vec3::Zero(), w = Vec3::Zero();
+  if (req->has_velocity()) {
+    if (auto s = FromProto(req->velocity().linear(), "velocity.linear", &v); !s.ok())
+      return Done(ctx, s);
+    if (auto s = FromProto(req->velocity().angular(), "velocity.angular", &w); !s.ok())
+      return Done(ctx, s);
+  }
+  std::uint64_t rev = 0;
+  if (auto s = scene->MoveBody(req->body_id(), X_WB, &v, &w, &rev); !s.ok()) return Done(ctx, s);
+  resp->set_revision(rev);
+  return Done(ctx, grpc::Status::OK);
+}
+
+grpc::ServerUnaryReactor* SceneServiceImpl::RemoveBody(grpc::CallbackServerContext* ctx,
+                                                       const v1::RemoveBodyRequest* req,
+                                                       v1::RemoveBodyResponse* resp) {
+  ScenePtr scene;
+  if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kInject, &scene); !s.ok())
+    return Done(ctx, s);
+  if (auto s = ValidateId(req->body_id(), "body_id"); !s.ok()) return Done(ctx, s);
+  std::uint64_t rev = 0;
+  if (auto s = scene->RemoveBody(req->body_id(), &rev); !s.ok()) return Done(ctx, s);
+  resp->set_revision(rev);
+  Log()->info("scene '{}': removed body '{}'", scene->id(), req->body_id());
+  return Done(ctx, grpc::Status::OK);
+}
+
+grpc::ServerWriteReactor<v1::SceneEvent>* SceneServiceImpl::Watch(grpc::CallbackServerContext* ctx,
+                                                                  const v1::WatchRequest* req) {
+  struct Reject final : grpc::ServerWriteReactor<v1::SceneEvent> {
+    explicit Reject(const grpc::Status& s) { Finish(s); }
+    void OnDone() override { delete this; }
+  };
+  if (core_->shutting_down.load()) return new Reject(core_->Unavailable());
+  ScenePtr scene;
+  if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kObserve, &scene); !s.ok())
+    return new Reject(s);
+  if (!std::isfinite(req->rate_hz()) || req->rate_hz() < 0 || req->rate_hz() > 1000) {
+    return new Reject(InvalidArgument("rate_hz", "must be in (0, 1000] (0 means 60)"));
+  }
+  // Counted here (released in WatchReactor::OnDone) so concurrent Watch calls cannot overshoot.
+  if (core_->observers.fetch_add(1) >= core_->limits.max_observers) {
+    --core_->observers;
+    return new Reject(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                                   "the server already has its limit of " +
+                                       std::to_string(core_->limits.max_observers) + " observers"));
+  }
+  return new WatchReactor(core_, std::move(scene), *req);
+}
+
+}  // namespace hapticpd::server::internal

@@ -1,0 +1,369 @@
+#include "server/server.h"
+
+#include <grpcpp/ext/proto_server_reflection_plugin.h>
+#include <grpcpp/grpcpp.h>
+#include <grpcpp/health_check_service_interface.h>
+#include <grpcpp/security/server_credentials.h>
+#include <nlohmann/json.hpp>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "server/convert.h"
+#include "server/core.h"
+#include "server/observers.h"
+#include "server/services.h"
+
+namespace hapticpd::server {
+
+using internal::Log;
+
+const char* StatusCodeName(int code) {
+  switch (static_cast<grpc::StatusCode>(code)) {
+    case grpc::StatusCode::OK:
+      return "OK";
+    case grpc::StatusCode::CANCELLED:
+      return "CANCELLED";
+    case grpc::StatusCode::UNKNOWN:
+      return "UNKNOWN";
+    case grpc::StatusCode::INVALID_ARGUMENT:
+      return "INVALID_ARGUMENT";
+    case grpc::StatusCode::DEADLINE_EXCEEDED:
+      return "DEADLINE_EXCEEDED";
+    case grpc::StatusCode::NOT_FOUND:
+      return "NOT_FOUND";
+    case grpc::StatusCode::ALREADY_EXISTS:
+      return "ALREADY_EXISTS";
+    case grpc::StatusCode::PERMISSION_DENIED:
+      return "PERMISSION_DENIED";
+    case grpc::StatusCode::RESOURCE_EXHAUSTED:
+      return "RESOURCE_EXHAUSTED";
+    case grpc::StatusCode::FAILED_PRECONDITION:
+      return "FAILED_PRECONDITION";
+    case grpc::StatusCode::ABORTED:
+      return "ABORTED";
+    case grpc::StatusCode::OUT_OF_RANGE:
+      return "OUT_OF_RANGE";
+    case grpc::StatusCode::UNIMPLEMENTED:
+      return "UNIMPLEMENTED";
+    case grpc::StatusCode::INTERNAL:
+      return "INTERNAL";
+    case grpc::StatusCode::UNAVAILABLE:
+      return "UNAVAILABLE";
+    case grpc::StatusCode::DATA_LOSS:
+      return "DATA_LOSS";
+    case grpc::StatusCode::UNAUTHENTICATED:
+      return "UNAUTHENTICATED";
+    default:
+      return "UNKNOWN";
+  }
+}
+
+namespace {
+
+std::string ReadFile(const std::string& path, const char* what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(path + ": cannot open " + what);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+bool IsLoopback(const std::string& listen) {
+  std::string host = listen.substr(0, listen.rfind(':'));
+  if (host.size() >= 2 && host.front() == '[' && host.back() == ']') {
+    host = host.substr(1, host.size() - 2);
+  }
+  return host == "localhost" || host.rfind("127.", 0) == 0 || host == "::1";
+}
+
+/// A pose from {"position": [x, y, z], "orientation": [w, x, y, z]}.
+v1::Pose PoseFromJson(const nlohmann::json& j, const std::string& where) {
+  v1::Pose p;
+  if (!j.is_object()) throw std::runtime_error(where + ": expected an object");
+  if (j.contains("position")) {
+    const auto& a = j["position"];
+    if (!a.is_array() || a.size() != 3)
+      throw std::runtime_error(where + ".position: expected [x, y, z]");
+    p.mutable_position()->set_x(a[0].get<double>());
+    p.mutable_position()->set_y(a[1].get<double>());
+    p.mutable_position()->set_z(a[2].get<double>());
+  }
+  if (j.contains("orientation")) {
+    const auto& a = j["orientation"];
+    if (!a.is_array() || a.size() != 4) {
+      throw std::runtime_error(where + ".orientation: expected [w, x, y, z]");
+    }
+    auto* q = p.mutable_orientation();
+    q->set_w(a[0].get<double>());
+    q->set_x(a[1].get<double>());
+    q->set_y(a[2].get<double>());
+    q->set_z(a[3].get<double>());
+  }
+  return p;
+}
+
+}  // namespace
+
+struct HapticServer::Impl {
+  explicit Impl(ServerOptions o) : options(std::move(o)), core(options.limits) {}
+
+  ServerOptions options;
+  internal::Core core;
+  std::unique_ptr<internal::ObserverHub> hub;
+  std::unique_ptr<internal::SceneServiceImpl> scene_service;
+  std::unique_ptr<internal::HapticServiceImpl> haptic_service;
+  std::unique_ptr<grpc::Server> server;
+  int port = 0;
+  std::mutex mu;
+  std::condition_variable cv;
+  bool started = false;
+  bool shut_down = false;
+  bool shutting = false;
+  std::thread status_thread;
+
+  void LoadSceneFile(const std::string& path);
+  void StatusLoop();
+};
+
+void HapticServer::Impl::LoadSceneFile(const std::string& path) {
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(ReadFile(path, "scene file"));
+  } catch (const nlohmann::json::exception& e) {
+    throw std::runtime_error(path + ": not valid JSON (" + e.what() + ")");
+  }
+  try {
+    const std::string id = j.value("scene", std::string("default"));
+    if (auto s = ValidateId(id, "scene"); !s.ok()) throw std::runtime_error(s.error_message());
+    ScenePtr scene = core.scenes.Get(id);
+    if (!scene) {
+      auto s = core.scenes.Create(id, j.value("description", std::string()), core.limits.max_scenes,
+                                  &scene);
+      if (!s.ok()) throw std::runtime_error(s.error_message());
+    }
+    const std::filesystem::path dir = std::filesystem::path(path).parent_path();
+    int i = 0;
+    for (const auto& b : j.value("bodies", nlohmann::json::array())) {
+      const std::string where = "bodies[" + std::to_string(i++) + "]";
+      v1::BodySpec spec;
+      spec.set_body_id(b.value("id", std::string()));
+      spec.set_label(b.value("label", b.value("mesh", b.value("shape", std::string()))));
+      spec.set_movable(b.value("movable", false));
+      if (b.contains("pose")) *spec.mutable_pose() = PoseFromJson(b["pose"], where + ".pose");
+      if (b.contains("material")) {
+        const auto& m = b["material"];
+        const pd::Material d;
+        auto* pm = spec.mutable_material();
+        pm->set_stiffness(m.value("stiffness", d.stiffness));
+        pm->set_rotational_stiffness(m.value("rotational_stiffness", d.rotational_stiffness));
+        pm->set_damping(m.value("damping", d.damping));
+        pm->set_static_friction(m.value("static_friction", d.static_friction));
+        pm->set_dynamic_friction(m.value("dynamic_friction", d.dynamic_friction));
+      }
+      std::optional<pd::Mesh> mesh;
+      grpc::Status s;
+      if (b.contains("mesh") == b.contains("shape")) {
+        throw std::runtime_error(where + ": give exactly one of \"mesh\" (a file) or \"shape\"");
+      }
+      if (b.contains("mesh")) {
+        std::filesystem::path mp = b["mesh"].get<std::string>();
+        if (mp.is_relative()) mp = dir / mp;
+        try {
+          mesh = pd::LoadMesh(mp.string());
+        } catch (const pd::MeshError& e) {
+          throw std::runtime_error(where + ".mesh: " + e.what());
+        }
+      } else {
+        s = MeshFromShape(b["shape"].get<std::string>(), where + ".shape",
+                          core.limits.max_mesh_triangles, &mesh);
+      }
+      BodyState body;
+      if (s.ok()) s = internal::MakeBody(&core, spec, where, std::move(*mesh), &body);
+      if (s.ok()) s = scene->AddBody(std::move(body), core.limits.max_bodies_per_scene, nullptr);
+      if (!s.ok()) throw std::runtime_error(s.error_message());
+    }
+    Log()->info("scene '{}' loaded from {} ({} bodies)", id, path,
+                scene->snapshot()->bodies.size());
+  } catch (const nlohmann::json::exception& e) {
+    throw std::runtime_error(path + ": " + e.what());
+  } catch (const std::runtime_error& e) {
+    const std::string what = e.what();
+    if (what.rfind(path, 0) == 0) throw;
+    throw std::runtime_error(path + ": " + what);
+  }
+}
+
+void HapticServer::Impl::StatusLoop() {
+  using namespace std::chrono;
+  const auto interval = duration<double>(options.status_interval_s);
+  std::uint64_t last_updates = core.stats.updates_sent.load();
+  std::uint64_t last_dropped = core.stats.observer_frames_dropped.load();
+  auto last = steady_clock::now();
+  std::unique_lock lock(mu);
+  for (;;) {
+    if (cv.wait_for(lock, interval, [&] { return shutting; })) return;
+    const auto now = steady_clock::now();
+    const double dt = duration<double>(now - last).count();
+    const std::uint64_t updates = core.stats.updates_sent.load();
+    const std::uint64_t dropped = core.stats.observer_frames_dropped.load();
+    const auto hist = core.stats.compute_us.Drain();
+    Log()->info(
+        "status: {} sessions, {:.0f} updates/s, PD p50 {:.0f} us p99 {:.0f} us, {} observers "
+        "({} frames dropped), {} scenes",
+        core.sessions.load(), static_cast<double>(updates - last_updates) / dt,
+        internal::LatencyHistogram::Quantile(hist, 0.5),
+        internal::LatencyHistogram::Quantile(hist, 0.99), core.observers.load(),
+        dropped - last_dropped, core.scenes.List().size());
+    last_updates = updates;
+    last_dropped = dropped;
+    last = now;
+  }
+}
+
+HapticServer::HapticServer(ServerOptions options)
+    : impl_(std::make_unique<Impl>(std::move(options))) {}
+
+HapticServer::~HapticServer() { Shutdown(); }
+
+void HapticServer::Start() {
+  Impl& m = *impl_;
+  const ServerOptions& o = m.options;
+  if (!o.tokens_file.empty()) {
+    m.core.tokens = TokenStore::FromFile(o.tokens_file);
+  } else if (!o.listen.empty() && !IsLoopback(o.listen)) {
+    throw std::runtime_error("refusing to listen on " + o.listen +
+                             " without --tokens: an open server (no authentication) listens on "
+                             "loopback only (127.0.0.1, ::1, localhost)");
+  }
+  if (o.tls_cert.empty() != o.tls_key.empty()) {
+    throw std::runtime_error("TLS needs both --tls-cert and --tls-key");
+  }
+  for (const auto& f : o.scene_files) m.LoadSceneFile(f);
+  if (o.scene_files.empty()) {
+    auto s =
+        m.core.scenes.Create("default", "the default scene", m.core.limits.max_scenes, nullptr);
+    if (!s.ok()) throw std::runtime_error(s.error_message());
+  }
+
+  m.hub = std::make_unique<internal::ObserverHub>(&m.core);
+  m.core.hub = m.hub.get();
+  m.scene_service = std::make_unique<internal::SceneServiceImpl>(&m.core);
+  m.haptic_service = std::make_unique<internal::HapticServiceImpl>(&m.core);
+
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  builder.SetMaxReceiveMessageSize(o.limits.max_message_bytes);
+  builder.SetMaxSendMessageSize(std::max(o.limits.max_message_bytes, 64 << 20));
+  std::string mode = "in-process only";
+  if (!o.listen.empty()) {
+    std::shared_ptr<grpc::ServerCredentials> creds;
+    if (!o.tls_cert.empty()) {
+      grpc::SslServerCredentialsOptions ssl;
+      ssl.pem_key_cert_pairs.push_back(
+          {ReadFile(o.tls_key, "TLS key"), ReadFile(o.tls_cert, "TLS certificate")});
+      creds = grpc::SslServerCredentials(ssl);
+      mode = "TLS";
+    } else {
+      creds = grpc::InsecureServerCredentials();
+      mode = "plaintext";
+    }
+    builder.AddListeningPort(o.listen, creds, &m.port);
+  }
+  builder.RegisterService(m.scene_service.get());
+  builder.RegisterService(m.haptic_service.get());
+  m.server = builder.BuildAndStart();
+  if (!m.server || (!o.listen.empty() && m.port == 0)) {
+    m.core.builds.Stop();
+    m.hub->Stop();
+    throw std::runtime_error("cannot listen on " + o.listen +
+                             " (address in use or invalid HOST:PORT?)");
+  }
+  m.server->GetHealthCheckService()->SetServingStatus(true);
+  {
+    std::lock_guard lock(m.mu);
+    m.started = true;
+  }
+  if (o.listen.empty()) {
+    Log()->info("serving in-process");
+  } else {
+    const std::string host = o.listen.substr(0, o.listen.rfind(':'));
+    Log()->info("listening on {}:{} ({})", host, m.port, mode);
+  }
+  if (m.core.tokens.open()) {
+    Log()->info("no token file: running open (no authentication), loopback only");
+  } else {
+    Log()->info("{} tokens loaded from {}", m.core.tokens.size(), o.tokens_file);
+  }
+  if (o.status_interval_s > 0) m.status_thread = std::thread([&m] { m.StatusLoop(); });
+}
+
+int HapticServer::port() const { return impl_->port; }
+
+std::shared_ptr<grpc::Channel> HapticServer::InProcessChannel() {
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(64 << 20);
+  return impl_->server->InProcessChannel(args);
+}
+
+void HapticServer::Shutdown() {
+  Impl& m = *impl_;
+  {
+    std::unique_lock lock(m.mu);
+    if (!m.started) {
+      m.shut_down = true;
+      m.cv.notify_all();
+      return;
+    }
+    if (m.shutting) {
+      m.cv.wait(lock, [&] { return m.shut_down; });
+      return;
+    }
+    m.shutting = true;
+  }
+  m.cv.notify_all();
+  Log()->info("shutting down: {} sessions, {} observers", m.core.sessions.load(),
+              m.core.observers.load());
+  m.core.shutting_down.store(true);
+  m.server->GetHealthCheckService()->SetServingStatus(false);
+  m.core.StopCalls(nullptr, m.core.Unavailable());
+  const auto grace = std::chrono::milliseconds(
+      static_cast<std::int64_t>(std::max(0.0, m.options.shutdown_grace_s) * 1000));
+  // Streams that finish within the grace period end cleanly; the rest are cancelled.
+  m.server->Shutdown(std::chrono::system_clock::now() + grace);
+  m.core.builds.Stop();
+  if (!m.core.WaitNoCalls(std::chrono::seconds(10))) {
+    Log()->error("shutdown: {} calls still active after 10 s", m.core.active_calls());
+  }
+  m.server->Wait();
+  m.hub->Stop();
+  if (m.status_thread.joinable()) m.status_thread.join();
+  {
+    std::lock_guard lock(m.mu);
+    m.shut_down = true;
+  }
+  m.cv.notify_all();
+  Log()->info("server stopped");
+}
+
+void HapticServer::Wait() {
+  std::unique_lock lock(impl_->mu);
+  impl_->cv.wait(lock, [&] { return impl_->shut_down; });
+}
+
+HapticServer::Counts HapticServer::counts() const {
+  const Impl& m = *impl_;
+  Counts c;
+  c.scenes = static_cast<int>(m.core.scenes.List().size());
+  c.sessions = m.core.sessions.load();
+  c.observers = m.core.observers.load();
+  c.active_calls = m.core.active_calls();
+  c.updates_sent = m.core.stats.updates_sent.load();
+  c.observer_frames_sent = m.core.stats.observer_frames_sent.load();
+  c.observer_frames_dropped = m.core.stats.observer_frames_dropped.load();
+  return c;
+}
+
+}  // namespace hapticpd::server

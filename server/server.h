@@ -1,0 +1,91 @@
+// The hapticpd gRPC server: SceneService and HapticService on the callback
+// API, gRPC health checking and server reflection.
+//
+//   HapticServer server(options);
+//   server.Start();                 // throws std::runtime_error (bind, TLS, files)
+//   ... server.port() ...
+//   server.Shutdown();              // bounded; also from the destructor
+#pragma once
+
+#include <grpcpp/channel.h>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace hapticpd::server {
+
+/// Server limits; going over one gives RESOURCE_EXHAUSTED.
+struct Limits {
+  std::size_t max_mesh_triangles = 2'000'000;
+  std::size_t max_mesh_bytes = 256u << 20;  ///< per uploaded mesh file
+  std::size_t max_bodies_per_scene = 256;
+  std::size_t max_scenes = 64;
+  int max_sessions = 16;
+  int max_observers = 64;
+  int max_message_bytes = 8 << 20;  ///< per received gRPC message
+};
+
+struct ServerOptions {
+  /// HOST:PORT; port 0 picks a free port (see HapticServer::port()). Empty:
+  /// in-process only (InProcessChannel).
+  std::string listen = "127.0.0.1:50051";
+  /// Token file (server/auth.h). Without one the server runs open and
+  /// refuses any non-loopback listen address.
+  std::string tokens_file;
+  /// PEM files; both or neither.
+  std::string tls_cert;
+  std::string tls_key;
+  /// Scene files (JSON) preloaded at start; without any, one empty scene
+  /// named "default" is created.
+  std::vector<std::string> scene_files;
+  Limits limits;
+  /// Seconds between one-line status logs; <= 0 disables them.
+  double status_interval_s = 10;
+  /// Seconds streams get to finish at shutdown before they are cancelled.
+  double shutdown_grace_s = 2;
+};
+
+class HapticServer {
+ public:
+  explicit HapticServer(ServerOptions options);
+  ~HapticServer();
+  HapticServer(const HapticServer&) = delete;
+  HapticServer& operator=(const HapticServer&) = delete;
+
+  /// Loads tokens and scenes, binds and starts serving.
+  void Start();
+  /// The bound TCP port (0 when listening in-process only).
+  int port() const;
+  /// A channel to this server that bypasses the network stack. It must not
+  /// be used once Shutdown() has begun (gRPC's in-process transport crashes).
+  std::shared_ptr<grpc::Channel> InProcessChannel();
+  /// Health NOT_SERVING, tells every session and observer (UNAVAILABLE),
+  /// waits up to shutdown_grace_s for streams to finish, cancels the rest.
+  /// Idempotent and thread-safe.
+  void Shutdown();
+  /// Blocks until Shutdown() has completed.
+  void Wait();
+
+  /// Current counts, for tests and the status line.
+  struct Counts {
+    int scenes = 0;
+    int sessions = 0;
+    int observers = 0;
+    int active_calls = 0;  ///< streaming reactors not yet done
+    std::uint64_t updates_sent = 0;
+    std::uint64_t observer_frames_sent = 0;
+    std::uint64_t observer_frames_dropped = 0;
+  };
+  Counts counts() const;
+
+  struct Impl;
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+/// One-line text for a status code, e.g. "INVALID_ARGUMENT".
+const char* StatusCodeName(int code);
+
+}  // namespace hapticpd::server
