@@ -12,6 +12,8 @@ void RegisterPd(CLI::App& app);
 void RegisterServe(CLI::App& app);
 void RegisterSceneOps(CLI::App& app);  // inject, move, remove, scene
 void RegisterWatchCouple(CLI::App& app);
+void RegisterDevice(CLI::App& app);  // device: the 1 kHz device side of a session
+void RegisterDemo(CLI::App& app);    // demo: server + scene + simulated device in one process
 
 /// Thrown by a command to exit non-zero with a one-line reason on stderr.
 struct CommandError : std::runtime_error {

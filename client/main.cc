@@ -20,6 +20,8 @@ int main(int argc, char** argv) {
   hapticpd::cli::RegisterServe(app);
   hapticpd::cli::RegisterSceneOps(app);
   hapticpd::cli::RegisterWatchCouple(app);
+  hapticpd::cli::RegisterDevice(app);
+  hapticpd::cli::RegisterDemo(app);
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
   try {
     app.parse(argc, argv);

@@ -96,6 +96,10 @@ void ServoLoop::Tick(std::int64_t now_ns) {
     proxy_init_ = true;
   }
 
+  if (reset_requested_.load(std::memory_order_relaxed) &&
+      reset_requested_.exchange(false, std::memory_order_acq_rel)) {
+    ResetContact();
+  }
   if (ir_in_.Fetch()) {
     eval_.Accept(ir_in_.front(), proxy_.X_WP);
     r.new_ir = true;

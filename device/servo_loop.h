@@ -125,7 +125,11 @@ class ServoLoop {
   const Coupling& coupling() const { return coupling_; }
   const ServoConfig& config() const { return config_; }
   /// Forget the IR and re-arm the start-up ramp (e.g. after a reconnect).
+  /// Servo thread only (or between Tick calls).
   void ResetContact();
+  /// The same from any other thread (a Session on reconnect): the next tick
+  /// calls ResetContact() before it takes a new IR. Wait-free.
+  void RequestResetContact() { reset_requested_.store(true, std::memory_order_release); }
 
  private:
   void Run(std::stop_token st);
@@ -151,6 +155,7 @@ class ServoLoop {
   bool engaged_ = false;
   std::jthread thread_;
   std::atomic<bool> got_rt_{false};
+  std::atomic<bool> reset_requested_{false};
 };
 
 }  // namespace hapticpd::device

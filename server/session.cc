@@ -412,8 +412,11 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
         row->set_stiffness(k);
         row->set_body_index(body_index);
       };
-      if (r.regions.empty() && r.depth > 0) {
-        add_row(c_W, r.translation_W / r.depth, r.depth);  // no regions: one row at the CoM
+      // No regions (PDg, or PDt without them): one row at the centre of mass
+      // along the answer's translation (for PDg, depth = sqrt(sigma) is not
+      // the translation's length: the row uses the translation itself).
+      if (const double len = r.translation_W.norm(); r.regions.empty() && len > 0) {
+        add_row(c_W, r.translation_W / len, len);
       }
       for (const pd::ContactRegion& reg : r.regions) add_row(reg.p_W, reg.n_W, reg.depth);
     }

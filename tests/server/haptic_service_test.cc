@@ -107,6 +107,12 @@ TEST_P(HapticServiceTest, PdgSessionPushesOutWithTheFullAnswerPose) {
     EXPECT_GT(u->target_pose().position().z(), z);
     EXPECT_GT(u->force().z(), 0.0);
     EXPECT_NEAR(std::sqrt(u->sigma()), u->depth(), 1e-12) << "not a PDg answer";
+    for (const auto& row : u->rows()) {
+      const double n =
+          std::sqrt(row.normal().x() * row.normal().x() + row.normal().y() * row.normal().y() +
+                    row.normal().z() * row.normal().z());
+      EXPECT_NEAR(n, 1.0, 1e-12) << "row normals are unit";
+    }
     EXPECT_TRUE(std::isfinite(u->rotation_angle()));
     EXPECT_TRUE(std::isfinite(u->torque().x()) && std::isfinite(u->torque().y()) &&
                 std::isfinite(u->torque().z()));

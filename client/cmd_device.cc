@@ -1,0 +1,287 @@
+// `hapticpd device`: the device side of a haptic session. A simulated hand
+// (or a replayed trajectory) drives a device whose 1 kHz servo loop renders
+// contact from the server's ContactUpdates through the network Session
+// (client/session.h); at the end it prints the loop's and the session's
+// statistics (one JSON object with --json).
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <iostream>
+#include <limits>
+#include <memory>
+#include <sstream>
+#include <thread>
+
+#include "client/rpc_util.h"
+#include "client/session.h"
+#include "device/replay_device.h"
+#include "device/servo_loop.h"
+#include "device/simulated_device.h"
+#include "hapticpd/v1/scene.grpc.pb.h"
+#include "pd/mesh.h"
+#include "server/convert.h"
+
+namespace hapticpd::cli {
+namespace {
+
+using device::Pose;
+using device::Vec3;
+
+struct DeviceOptions {
+  ConnectionOptions conn;
+  std::string scene;
+  std::string probe;
+  std::string probe_body;
+  std::string mode = "pdt";
+  std::string simulated;
+  std::string replay;
+  std::string start;
+  double duration = 5;
+  double travel = 0.02;
+  double max_rate = 0;
+  std::string record;
+  bool json = false;
+};
+
+std::shared_ptr<grpc::ChannelCredentials> Credentials(const ConnectionOptions& o) {
+  if (o.tls_ca.empty() && !o.tls) return grpc::InsecureChannelCredentials();
+  grpc::SslCredentialsOptions ssl;
+  if (!o.tls_ca.empty()) {
+    std::ifstream in(o.tls_ca);
+    if (!in) throw CommandError("--tls-ca: cannot open " + o.tls_ca);
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    ssl.pem_root_certs = ss.str();
+  }
+  return grpc::SslCredentials(ssl);
+}
+
+Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
+
+Pose FromWire(const v1::Pose& p) {
+  const Vec3 t = ToVec(p.position());
+  if (!p.has_orientation()) return Pose::FromTranslation(t);
+  const auto& q = p.orientation();
+  return Pose::FromQuaternion(device::Quat(q.w(), q.x(), q.y(), q.z()), t);
+}
+
+/// Default start: centred above the scene's bounding box (bodies other than
+/// the probe body), the probe's lowest point 5 mm above its top.
+Pose DefaultStart(const DeviceOptions& o, const v1::Welcome& welcome) {
+  auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
+  auto ctx = MakeContext(o.conn);
+  v1::GetSceneRequest req;
+  req.set_scene_id(o.scene);
+  v1::Scene scene;
+  Check(stub->GetScene(ctx.get(), req, &scene), "device");
+  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity());
+  Vec3 hi = -lo;
+  for (const v1::Body& b : scene.bodies()) {
+    if (b.body_id() == o.probe_body) continue;
+    const Pose X = FromWire(b.pose());
+    const Vec3 a = ToVec(b.mesh_info().aabb_min()), c = ToVec(b.mesh_info().aabb_max());
+    for (int i = 0; i < 8; ++i) {
+      const Vec3 p((i & 1) ? c.x() : a.x(), (i & 2) ? c.y() : a.y(), (i & 4) ? c.z() : a.z());
+      lo = lo.cwiseMin(X * p);
+      hi = hi.cwiseMax(X * p);
+    }
+  }
+  if (!lo.allFinite()) lo = hi = Vec3::Zero();  // empty scene: at the origin
+  const double below_com =
+      welcome.probe_body_frame().position().z() - welcome.probe_mesh_info().aabb_min().z();
+  return device::StartPoseAbove(lo, hi, std::max(0.0, below_com) + 0.005);
+}
+
+void RunDevice(const DeviceOptions& o) {
+  // --- validate everything before connecting
+  client::SessionOptions so;
+  so.server = o.conn.server;
+  so.token = o.conn.token;
+  so.credentials = Credentials(o.conn);
+  so.connect_timeout_s = o.conn.timeout_s > 0 ? std::min(o.conn.timeout_s, 10.0) : 10.0;
+  v1::Hello& h = so.hello;
+  h.set_scene_id(o.scene);
+  if (o.mode == "pdt")
+    h.set_mode(v1::PD_MODE_PDT);
+  else if (o.mode == "pdg")
+    h.set_mode(v1::PD_MODE_PDG);
+  else if (o.mode == "none")
+    h.set_mode(v1::PD_MODE_NONE);
+  else
+    throw CommandError("device: --mode: expected pdt, pdg or none, got '" + o.mode + "'");
+  if (o.probe.empty() == o.probe_body.empty()) {
+    throw CommandError("device: give exactly one of --probe MESH|shape:SPEC and --probe-body ID");
+  }
+  if (!o.probe_body.empty()) {
+    h.set_probe_body_id(o.probe_body);
+  } else if (o.probe.rfind("shape:", 0) == 0) {
+    h.set_probe_shape(o.probe.substr(6));
+  } else {
+    server::ToProto(pd::LoadMesh(o.probe), h.mutable_probe_mesh());
+  }
+  if (o.simulated.empty() == o.replay.empty()) {
+    throw CommandError("device: give exactly one of --simulated SCRIPT and --replay FILE");
+  }
+  if (!(o.duration > 0) || !std::isfinite(o.duration) || o.duration > 24 * 3600) {
+    throw CommandError("device: --duration: expected seconds > 0");
+  }
+  if (!(o.travel > 0) || !std::isfinite(o.travel)) {
+    throw CommandError("device: --travel: expected metres > 0");
+  }
+  if (!(o.max_rate >= 0) || !std::isfinite(o.max_rate)) {
+    throw CommandError("device: --max-rate: expected >= 0");
+  }
+  h.set_max_rate_hz(o.max_rate);
+  device::HandScript script = device::HandScript::kHold;
+  if (!o.simulated.empty()) {
+    try {
+      script = device::ParseHandScript(o.simulated);
+    } catch (const std::invalid_argument& e) {
+      throw CommandError(std::string("device: --simulated: ") + e.what());
+    }
+  }
+  std::optional<Pose> start;
+  if (!o.start.empty()) start = FromWire(ParsePose(o.start, "--start"));
+
+  // --- connect, then build the device and the loop around the welcome
+  client::Session session(so);
+  try {
+    session.Connect();
+  } catch (const client::SessionError& e) {
+    throw CommandError(std::string("device: ") + e.what() + " (server " + o.conn.server + ")");
+  }
+  if (!start) start = DefaultStart(o, session.welcome());
+  const auto& clock = device::SteadyClock::Instance();
+  // The device's workspace is centred on the start pose.
+  const Pose X_WD = Pose::FromTranslation(start->t);
+  std::unique_ptr<device::HapticDevice> dev;
+  if (!o.simulated.empty()) {
+    device::ScriptParams sp;
+    sp.script = script;
+    sp.X_DS = Pose{start->R, Vec3::Zero()};
+    sp.duration_s = std::max(0.5, 0.9 * o.duration);
+    sp.travel = o.travel;
+    dev = std::make_unique<device::SimulatedDevice>(sp, &clock);
+  } else {
+    dev = std::make_unique<device::ReplayDevice>(o.replay, &clock);
+  }
+  std::unique_ptr<device::RecordingDevice> rec;
+  device::HapticDevice* used = dev.get();
+  if (!o.record.empty()) {
+    rec = std::make_unique<device::RecordingDevice>(
+        dev.get(), static_cast<std::size_t>(o.duration * 1000 * 1.1) + 1000);
+    used = rec.get();
+  }
+  used->Open();
+  device::ServoConfig config;
+  config.X_PA = session.X_PA();
+  config.X_WD = X_WD;
+  device::ServoLoop loop(used, config, &clock);
+  session.Start(&loop);
+  loop.Start();
+  const auto t0 = std::chrono::steady_clock::now();
+  std::this_thread::sleep_for(std::chrono::duration<double>(o.duration));
+  loop.Stop();
+  const double elapsed =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  session.Stop();
+  used->Close();
+  if (rec) rec->Save(o.record);
+
+  const device::ServoStats& s = loop.stats();
+  const client::SessionStats ss = session.stats();
+  const double period_mean = s.period_us.mean();
+  nlohmann::json j;
+  j["loop_hz"] = period_mean > 0 ? 1e6 / period_mean : 0.0;
+  j["ticks"] = s.ticks;
+  j["elapsed_s"] = elapsed;
+  j["period_mean_us"] = period_mean;
+  j["period_std_us"] = s.period_us.stddev();
+  j["period_p50_us"] = s.period_us.Quantile(0.5);
+  j["period_p99_us"] = s.period_us.Quantile(0.99);
+  j["period_p999_us"] = s.period_us.Quantile(0.999);
+  j["period_max_us"] = s.period_us.max();
+  j["late_ticks"] = s.late_ticks;
+  j["tick_compute_p99_us"] = s.compute_us.Quantile(0.99);
+  j["tick_compute_max_us"] = s.compute_us.max();
+  j["realtime_priority"] = loop.got_realtime_priority();
+  j["updates"] = ss.updates;
+  j["contact_updates"] = ss.contact_updates;
+  j["bad_updates"] = ss.bad_updates;
+  j["poses_sent"] = ss.poses_sent;
+  j["ir_updates"] = s.ir_updates;
+  j["rtt_p50_us"] = ss.rtt_p50_us;
+  j["rtt_p99_us"] = ss.rtt_p99_us;
+  j["rtt_max_us"] = ss.rtt_max_us;
+  j["server_pd_p50_us"] = ss.server_compute_p50_us;
+  j["server_pd_p99_us"] = ss.server_compute_p99_us;
+  j["ir_age_p50_ms"] = s.ir_age_ms.Quantile(0.5);
+  j["ir_age_p99_ms"] = s.ir_age_ms.Quantile(0.99);
+  j["stale_ticks"] = s.stale_ticks;
+  j["outside_ticks"] = s.outside_ticks;
+  j["clamped_ticks"] = s.clamped_ticks;
+  j["device_errors"] = s.device_errors;
+  j["max_depth"] = ss.max_depth;
+  j["max_force"] = s.max_force;
+  j["max_torque"] = s.max_torque;
+  j["max_dforce"] = s.max_dforce;
+  j["max_dtorque"] = s.max_dtorque;
+  j["energy_j"] = s.energy_into_hand_j;
+  j["passivity_min_j"] = s.passivity_min_j;
+  j["connects"] = ss.connects;
+  j["disconnects"] = ss.disconnects;
+  if (o.json) {
+    std::cout << j.dump() << std::endl;
+    return;
+  }
+  std::printf(
+      "device: %.1f s on scene '%s' (%s), session %s\n"
+      "  loop   %.1f Hz, period p50 %.0f us p99 %.0f us max %.0f us, %llu late ticks%s\n"
+      "  net    %llu updates (%llu in contact), round trip p50 %.0f us p99 %.0f us, "
+      "server PD p50 %.0f us\n"
+      "  force  max %.2f N (step %.3f N/tick), torque max %.3f N m, depth max %.2f mm\n"
+      "  energy into the hand %.4f J, passivity observer min %.4f J\n",
+      elapsed, o.scene.c_str(), o.mode.c_str(), session.welcome().session_id().c_str(),
+      j["loop_hz"].get<double>(), s.period_us.Quantile(0.5), s.period_us.Quantile(0.99),
+      s.period_us.max(), static_cast<unsigned long long>(s.late_ticks),
+      loop.got_realtime_priority() ? " (SCHED_FIFO)" : "",
+      static_cast<unsigned long long>(ss.updates),
+      static_cast<unsigned long long>(ss.contact_updates), ss.rtt_p50_us, ss.rtt_p99_us,
+      ss.server_compute_p50_us, s.max_force, s.max_dforce, s.max_torque, 1e3 * ss.max_depth,
+      s.energy_into_hand_j, s.passivity_min_j);
+  if (ss.disconnects > 0) {
+    std::printf("  %llu disconnects, last: %s\n", static_cast<unsigned long long>(ss.disconnects),
+                ss.last_error.c_str());
+  }
+  if (rec) std::printf("  recorded %zu samples to %s\n", rec->samples().size(), o.record.c_str());
+}
+
+}  // namespace
+
+void RegisterDevice(CLI::App& app) {
+  auto o = std::make_shared<DeviceOptions>();
+  auto* cmd = app.add_subcommand(
+      "device", "Run a (simulated or replayed) haptic device against a server at 1 kHz");
+  AddConnectionOptions(cmd, &o->conn);
+  cmd->add_option("--scene", o->scene, "Scene id")->required();
+  cmd->add_option("--probe", o->probe, "Probe: a mesh file, or shape:SPEC (e.g. shape:stick)");
+  cmd->add_option("--probe-body", o->probe_body, "Use this scene body as the probe instead");
+  cmd->add_option("--mode", o->mode, "pdt, pdg or none")->capture_default_str();
+  cmd->add_option("--simulated", o->simulated,
+                  "Simulated hand script: hold, press, slide, twist, circle, loop, plate");
+  cmd->add_option("--replay", o->replay, "Replay a trajectory CSV (as written by --record)");
+  cmd->add_option("--start", o->start,
+                  "Start pose x,y,z[,qw,qx,qy,qz] (default: above the scene, centred)");
+  cmd->add_option("--duration", o->duration, "Seconds to run")->capture_default_str();
+  cmd->add_option("--travel", o->travel, "Script travel (m)")->capture_default_str();
+  cmd->add_option("--max-rate", o->max_rate, "Ask the server for at most this many updates/s")
+      ->capture_default_str();
+  cmd->add_option("--record", o->record, "Write the device trajectory to this CSV");
+  cmd->add_flag("--json", o->json, "Print the statistics as one JSON object");
+  cmd->callback([o] { RunDevice(*o); });
+}
+
+}  // namespace hapticpd::cli

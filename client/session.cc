@@ -1,0 +1,425 @@
+#include "client/session.h"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+namespace hapticpd::client {
+namespace {
+
+using device::IntermediateRep;
+using device::IrRow;
+using device::Pose;
+using device::Vec3;
+
+bool Finite(const Vec3& v) { return v.allFinite(); }
+
+Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
+
+/// Absent orientation means identity (proto3 default is all zeros).
+bool ToPose(const v1::Pose& p, Pose* out) {
+  const Vec3 t = ToVec(p.position());
+  if (!Finite(t)) return false;
+  if (!p.has_orientation()) {
+    *out = Pose::FromTranslation(t);
+    return true;
+  }
+  const auto& q = p.orientation();
+  const device::Quat quat(q.w(), q.x(), q.y(), q.z());
+  const double n = quat.norm();
+  if (!std::isfinite(n) || n < 0.5) return false;
+  *out = Pose::FromQuaternion(quat, t);
+  return true;
+}
+
+void SetPose(const Pose& X, v1::Pose* out) {
+  out->mutable_position()->set_x(X.t.x());
+  out->mutable_position()->set_y(X.t.y());
+  out->mutable_position()->set_z(X.t.z());
+  const device::Quat q = X.Rotation();
+  out->mutable_orientation()->set_w(q.w());
+  out->mutable_orientation()->set_x(q.x());
+  out->mutable_orientation()->set_y(q.y());
+  out->mutable_orientation()->set_z(q.z());
+}
+
+const char* CodeName(grpc::StatusCode c) {
+  switch (c) {
+    case grpc::OK:
+      return "OK";
+    case grpc::CANCELLED:
+      return "CANCELLED";
+    case grpc::UNKNOWN:
+      return "UNKNOWN";
+    case grpc::INVALID_ARGUMENT:
+      return "INVALID_ARGUMENT";
+    case grpc::DEADLINE_EXCEEDED:
+      return "DEADLINE_EXCEEDED";
+    case grpc::NOT_FOUND:
+      return "NOT_FOUND";
+    case grpc::ALREADY_EXISTS:
+      return "ALREADY_EXISTS";
+    case grpc::PERMISSION_DENIED:
+      return "PERMISSION_DENIED";
+    case grpc::RESOURCE_EXHAUSTED:
+      return "RESOURCE_EXHAUSTED";
+    case grpc::FAILED_PRECONDITION:
+      return "FAILED_PRECONDITION";
+    case grpc::ABORTED:
+      return "ABORTED";
+    case grpc::OUT_OF_RANGE:
+      return "OUT_OF_RANGE";
+    case grpc::UNIMPLEMENTED:
+      return "UNIMPLEMENTED";
+    case grpc::INTERNAL:
+      return "INTERNAL";
+    case grpc::UNAVAILABLE:
+      return "UNAVAILABLE";
+    case grpc::DATA_LOSS:
+      return "DATA_LOSS";
+    case grpc::UNAUTHENTICATED:
+      return "UNAUTHENTICATED";
+    default:
+      return "UNKNOWN";
+  }
+}
+
+/// Errors retrying cannot fix (a bad hello, wrong credentials).
+bool Fatal(grpc::StatusCode c) {
+  return c == grpc::INVALID_ARGUMENT || c == grpc::UNAUTHENTICATED ||
+         c == grpc::PERMISSION_DENIED || c == grpc::UNIMPLEMENTED;
+}
+
+}  // namespace
+
+bool IrFromContactUpdate(const v1::ContactUpdate& u, const Pose& X_AP, std::int64_t receive_time_ns,
+                         IntermediateRep* ir) {
+  Pose X_WA_ref;
+  if (!ToPose(u.pose_ref(), &X_WA_ref)) return false;
+  ir->sequence = u.sequence();
+  ir->sample_time_ns = u.client_time_ns();
+  ir->receive_time_ns = receive_time_ns;
+  ir->X_WP_ref = X_WA_ref * X_AP;
+  ir->num_rows = 0;
+  ir->use_target = false;
+  ir->target_stiffness = 0;
+  ir->target_rotational_stiffness = 0;
+  ir->X_WP_target = ir->X_WP_ref;
+  const Vec3 c = ir->X_WP_ref.t;
+  for (const v1::ContactRow& r : u.rows()) {
+    const Vec3 p = ToVec(r.point());
+    Vec3 n = ToVec(r.normal());
+    const double depth = r.depth(), k = r.stiffness();
+    if (!Finite(p) || !Finite(n) || !std::isfinite(depth) || !std::isfinite(k) || k < 0) {
+      return false;
+    }
+    // Normals should be unit; PDg rows built from the PD vector over the
+    // object-norm depth are not quite, so normalise (a zero one is skipped).
+    const double n_norm = n.norm();
+    if (depth <= 0 || k == 0 || n_norm < 1e-9) continue;
+    n /= n_norm;
+    // The moment about the proxy origin, recomputed (it is the wire's
+    // `moment` when the server's CoM and X_AP agree).
+    const IrRow row{p, n, (p - c).cross(n), depth, k};
+    if (ir->num_rows < device::kMaxIrRows) {
+      ir->rows[static_cast<std::size_t>(ir->num_rows++)] = row;
+      continue;
+    }
+    auto it = std::min_element(ir->rows.begin(), ir->rows.end(),
+                               [](const IrRow& a, const IrRow& b) { return a.depth < b.depth; });
+    if (it->depth < depth) *it = row;
+  }
+  const bool in_contact = u.status() == v1::CONTACT_STATUS_PENETRATING ||
+                          u.status() == v1::CONTACT_STATUS_CAP_REACHED ||
+                          u.status() == v1::CONTACT_STATUS_FAILED;
+  if (u.sigma() > 0 && in_contact && u.target_stiffness() > 0) {
+    Pose X_WA_target;
+    if (!ToPose(u.target_pose(), &X_WA_target)) return false;
+    if (!std::isfinite(u.target_stiffness()) || !std::isfinite(u.target_rotational_stiffness())) {
+      return false;
+    }
+    ir->use_target = true;
+    ir->X_WP_target = X_WA_target * X_AP;
+    ir->target_stiffness = u.target_stiffness();
+    ir->target_rotational_stiffness = std::max(0.0, u.target_rotational_stiffness());
+  }
+  ir->W_ref.force = ToVec(u.force());
+  ir->W_ref.torque = ToVec(u.torque());
+  ir->validity_radius = std::isfinite(u.validity_radius()) ? u.validity_radius() : 0;
+  ir->validity_angle = std::isfinite(u.validity_angle()) ? u.validity_angle() : 0;
+  ir->compute_time_us = u.compute_time_us();
+  return true;
+}
+
+struct Session::Stream {
+  std::shared_ptr<grpc::Channel> channel;
+  std::unique_ptr<v1::HapticService::Stub> stub;
+  grpc::ClientContext ctx;
+  std::unique_ptr<grpc::ClientReaderWriter<v1::CoupleRequest, v1::CoupleResponse>> rw;
+  std::atomic<bool> reader_done{false};
+};
+
+Session::Session(SessionOptions options, const device::Clock* clock)
+    : options_(std::move(options)), clock_(clock) {
+  if (options_.hello.protocol_version() == 0) options_.hello.set_protocol_version(1);
+  if (options_.hello.client_name().empty()) options_.hello.set_client_name("hapticpd device");
+  if (!options_.credentials) options_.credentials = grpc::InsecureChannelCredentials();
+}
+
+Session::~Session() { Stop(); }
+
+std::unique_ptr<Session::Stream> Session::Open(bool first, std::string* error,
+                                               grpc::StatusCode* code) {
+  auto s = std::make_unique<Stream>();
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(64 << 20);
+  // A fresh channel per attempt with its own subchannels, so a restarted
+  // server is found at once rather than after gRPC's own reconnect backoff.
+  args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
+  args.SetInt(GRPC_ARG_INITIAL_RECONNECT_BACKOFF_MS, 20);
+  args.SetInt(GRPC_ARG_MIN_RECONNECT_BACKOFF_MS, 20);
+  args.SetInt(GRPC_ARG_MAX_RECONNECT_BACKOFF_MS, 500);
+  s->channel = grpc::CreateCustomChannel(options_.server, options_.credentials, args);
+  const auto deadline =
+      std::chrono::system_clock::now() +
+      std::chrono::microseconds(static_cast<std::int64_t>(options_.connect_timeout_s * 1e6));
+  *code = grpc::UNAVAILABLE;
+  // In short slices, so that Stop() is prompt.
+  for (;;) {
+    const auto slice =
+        std::min(deadline, std::chrono::system_clock::now() + std::chrono::milliseconds(50));
+    if (s->channel->WaitForConnected(slice)) break;
+    if (stopping_.load() || std::chrono::system_clock::now() >= deadline) {
+      *error = "cannot reach " + options_.server;
+      return nullptr;
+    }
+  }
+  s->stub = v1::HapticService::NewStub(s->channel);
+  if (!options_.token.empty()) s->ctx.AddMetadata("authorization", "Bearer " + options_.token);
+  {
+    std::lock_guard lock(ctx_mu_);
+    if (stopping_.load()) {
+      *error = "stopped";
+      *code = grpc::CANCELLED;
+      return nullptr;
+    }
+    live_ctx_ = &s->ctx;
+  }
+  auto clear_ctx = [&] {
+    std::lock_guard lock(ctx_mu_);
+    live_ctx_ = nullptr;
+  };
+  s->rw = s->stub->Couple(&s->ctx);
+  v1::CoupleRequest req;
+  *req.mutable_hello() = options_.hello;
+  v1::CoupleResponse resp;
+  // The welcome must come within the timeout: a watchdog cancels otherwise.
+  std::jthread watchdog([&](std::stop_token st) {
+    const auto end =
+        std::chrono::steady_clock::now() +
+        std::chrono::microseconds(static_cast<std::int64_t>(options_.connect_timeout_s * 1e6));
+    while (!st.stop_requested() && std::chrono::steady_clock::now() < end) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    }
+    if (!st.stop_requested()) s->ctx.TryCancel();  // timed out
+  });
+  const bool ok = s->rw->Write(req) && s->rw->Read(&resp) && resp.has_welcome();
+  watchdog.request_stop();
+  watchdog.join();
+  if (!ok) {
+    const grpc::Status st = s->rw->Finish();
+    clear_ctx();
+    *code = st.ok() ? grpc::INTERNAL : st.error_code();
+    *error = st.ok() ? std::string("no welcome from the server")
+                     : std::string(CodeName(st.error_code())) + ": " + st.error_message();
+    return nullptr;
+  }
+  // The first welcome defines X_PA; later ones (same hello, same probe)
+  // only bring a new session id.
+  if (first) {
+    welcome_ = resp.welcome();
+  } else {
+    std::lock_guard lock(stats_mu_);
+    counters_.session_id = resp.welcome().session_id();
+  }
+  *code = grpc::OK;
+  return s;
+}
+
+void Session::Connect() {
+  std::string error;
+  grpc::StatusCode code;
+  first_ = Open(true, &error, &code);
+  if (!first_) throw SessionError("session: " + error);
+  Pose X_MB;
+  if (!ToPose(welcome_.probe_body_frame(), &X_MB)) {
+    throw SessionError("session: welcome.probe_body_frame is not a valid pose");
+  }
+  // P: the mesh frame moved to the centre of mass (axes kept, like
+  // LocalPdIrSource), so the handle's orientation is the probe's.
+  X_PA_ = Pose::FromTranslation(-X_MB.t);
+  X_AP_ = X_PA_.Inverse();
+  std::lock_guard lock(stats_mu_);
+  ++counters_.connects;
+  counters_.session_id = welcome_.session_id();
+}
+
+void Session::Start(device::ServoLoop* loop) {
+  if (thread_.joinable()) return;
+  if (!first_) throw SessionError("session: Start() before Connect()");
+  loop_ = loop;
+  stopping_ = false;
+  thread_ = std::jthread([this](std::stop_token st) { Run(st); });
+}
+
+void Session::Stop() {
+  if (!thread_.joinable()) {
+    first_.reset();
+    return;
+  }
+  {
+    std::lock_guard lock(ctx_mu_);
+    stopping_ = true;
+  }
+  thread_.request_stop();
+  thread_.join();
+  thread_ = std::jthread();
+}
+
+void Session::ReadLoop(Stream* s) {
+  v1::CoupleResponse resp;
+  device::IrMailbox& out = loop_->ir_mailbox();
+  while (s->rw->Read(&resp)) {
+    if (!resp.has_update()) continue;
+    const v1::ContactUpdate& u = resp.update();
+    const std::int64_t now = clock_->NowNs();
+    const bool good = IrFromContactUpdate(u, X_AP_, now, &out.back());
+    if (good) out.Publish();
+    // Round trip: from writing the pose to reading its answer.
+    const std::size_t slot = u.sequence() % kRing;
+    double rtt_us = -1;
+    if (sent_seq_[slot].load(std::memory_order_acquire) == u.sequence()) {
+      rtt_us = 1e-3 * static_cast<double>(now - sent_ns_[slot].load(std::memory_order_relaxed));
+    }
+    std::lock_guard lock(stats_mu_);
+    ++counters_.updates;
+    if (!good) ++counters_.bad_updates;
+    if (u.rows_size() > 0) ++counters_.contact_updates;
+    counters_.max_depth = std::max(counters_.max_depth, u.depth());
+    if (rtt_us >= 0) rtt_us_.Add(rtt_us);
+    compute_us_.Add(u.compute_time_us());
+  }
+  s->reader_done = true;
+}
+
+void Session::Serve(Stream& s, std::stop_token st) {
+  connected_ = true;
+  std::thread reader([this, &s] { ReadLoop(&s); });
+  device::ProxyMailbox& in = loop_->proxy_mailbox();
+  v1::CoupleRequest req;
+  const auto poll =
+      std::chrono::nanoseconds(static_cast<std::int64_t>(options_.poll_interval_s * 1e9));
+  while (!st.stop_requested() && !s.reader_done.load()) {
+    if (!in.Fetch()) {
+      std::this_thread::sleep_for(poll);
+      continue;
+    }
+    const device::ProxySample& x = in.front();
+    auto* p = req.mutable_pose();
+    p->set_sequence(x.sequence);
+    SetPose(x.X_WA, p->mutable_pose());
+    p->set_client_time_ns(x.time_ns);
+    const std::size_t slot = x.sequence % kRing;
+    sent_ns_[slot].store(clock_->NowNs(), std::memory_order_relaxed);
+    sent_seq_[slot].store(x.sequence, std::memory_order_release);
+    if (!s.rw->Write(req)) break;
+    std::lock_guard lock(stats_mu_);
+    ++counters_.poses_sent;
+  }
+  connected_ = false;
+  if (st.stop_requested()) {
+    s.rw->WritesDone();  // the server then ends the stream with OK
+    // Bounded: cancel if the server does not finish promptly.
+    const auto end = std::chrono::steady_clock::now() + std::chrono::milliseconds(500);
+    while (!s.reader_done.load() && std::chrono::steady_clock::now() < end) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+  }
+  s.ctx.TryCancel();
+  reader.join();
+  const grpc::Status status = s.rw->Finish();
+  {
+    std::lock_guard lock(ctx_mu_);
+    live_ctx_ = nullptr;
+  }
+  if (!st.stop_requested()) {
+    std::lock_guard lock(stats_mu_);
+    ++counters_.disconnects;
+    counters_.last_error =
+        status.ok() ? std::string("stream ended")
+                    : std::string(CodeName(status.error_code())) + ": " + status.error_message();
+    spdlog::warn("session: disconnected ({}); reconnecting", counters_.last_error);
+  }
+}
+
+void Session::Run(std::stop_token st) {
+  // Stop() cancels whatever call blocks this thread.
+  std::stop_callback on_stop(st, [this] {
+    std::lock_guard lock(ctx_mu_);
+    if (live_ctx_ != nullptr) live_ctx_->TryCancel();
+  });
+  std::unique_ptr<Stream> s = std::move(first_);
+  double backoff = options_.backoff_initial_s;
+  while (!st.stop_requested()) {
+    if (s) {
+      Serve(*s, st);
+      s.reset();
+      backoff = options_.backoff_initial_s;
+      continue;
+    }
+    std::string error;
+    grpc::StatusCode code;
+    s = Open(false, &error, &code);
+    if (s) {
+      loop_->RequestResetContact();
+      std::lock_guard lock(stats_mu_);
+      ++counters_.connects;
+      spdlog::info("session: reconnected to {} (session {})", options_.server,
+                   counters_.session_id);
+      continue;
+    }
+    {
+      std::lock_guard lock(stats_mu_);
+      ++counters_.failed_attempts;
+      counters_.last_error = error;
+    }
+    if (Fatal(code)) {
+      spdlog::error("session: {}; giving up", error);
+      return;
+    }
+    // Sleep the backoff in small steps so Stop() is prompt.
+    const auto end = std::chrono::steady_clock::now() +
+                     std::chrono::microseconds(static_cast<std::int64_t>(backoff * 1e6));
+    while (!st.stop_requested() && std::chrono::steady_clock::now() < end) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    }
+    backoff = std::min(options_.backoff_max_s, 2 * backoff);
+  }
+}
+
+SessionStats Session::stats() const {
+  std::lock_guard lock(stats_mu_);
+  SessionStats s = counters_;
+  s.rtt_samples = rtt_us_.count();
+  s.rtt_p50_us = rtt_us_.Quantile(0.5);
+  s.rtt_p99_us = rtt_us_.Quantile(0.99);
+  s.rtt_max_us = rtt_us_.max();
+  s.rtt_mean_us = rtt_us_.mean();
+  s.server_compute_p50_us = compute_us_.Quantile(0.5);
+  s.server_compute_p99_us = compute_us_.Quantile(0.99);
+  return s;
+}
+
+}  // namespace hapticpd::client

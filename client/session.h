@@ -1,0 +1,156 @@
+// The device-side network Session (issue 6): one HapticService.Couple stream
+// between a ServoLoop and the server, kept alive across server restarts.
+//
+//   Session session(options);
+//   session.Connect();                     // hello -> welcome; throws SessionError
+//   config.X_PA = session.X_PA();          // proxy frame P at the probe's CoM
+//   ServoLoop loop(&device, config);
+//   session.Start(&loop); loop.Start();    // network thread + 1 kHz servo thread
+//   ...
+//   loop.Stop(); session.Stop();
+//
+// The network thread only touches the loop's mailboxes: it fetches the
+// newest proxy sample and sends it as a ProbePose (latest only: samples the
+// servo loop published while a Write was under way are superseded, never
+// queued), and a reader thread turns every ContactUpdate into an
+// IntermediateRep (IrFromContactUpdate) published to the IR mailbox. When
+// the stream breaks it reconnects with exponential backoff; meanwhile no IR
+// arrives, so the servo loop fades the contact force to zero by itself (the
+// IR goes stale), and on reconnect it asks the loop to ResetContact (the
+// start-up ramp re-arms). Round trips (pose written -> its ContactUpdate
+// read) and update counts are kept for statistics.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+
+#include <array>
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <thread>
+
+#include "device/haptic_device.h"
+#include "device/ir.h"
+#include "device/servo_loop.h"
+#include "device/stats.h"
+#include "hapticpd/v1/haptic.grpc.pb.h"
+
+namespace hapticpd::client {
+
+/// Converts a ContactUpdate into the IR the servo loop renders. X_AP maps
+/// the probe's mesh frame A (the wire's poses) to the proxy frame P (X_AP =
+/// X_PA^-1); receive_time_ns is the loop clock's time of arrival. PDt (and
+/// PDg without a target) uses the rows (the deepest kMaxIrRows are kept);
+/// a PDg answer in contact with a positive target stiffness renders the
+/// spring towards target_pose instead. Row normals are normalised (rows
+/// with a zero normal, depth or stiffness are skipped); non-finite numbers
+/// make it return false (the IR is then not to be published). No
+/// allocation.
+bool IrFromContactUpdate(const v1::ContactUpdate& update, const device::Pose& X_AP,
+                         std::int64_t receive_time_ns, device::IntermediateRep* ir);
+
+/// A failed Connect (one line: what and why).
+struct SessionError : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+struct SessionOptions {
+  std::string server = "127.0.0.1:50051";  ///< HOST:PORT
+  /// nullptr: insecure (plaintext) channel.
+  std::shared_ptr<grpc::ChannelCredentials> credentials;
+  std::string token;  ///< sent as "authorization: Bearer TOKEN" when set
+  /// The hello: scene, mode, exactly one probe (probe_shape, probe_mesh or
+  /// probe_body_id), optional material and max_rate_hz. protocol_version
+  /// and client_name are filled in when left empty.
+  v1::Hello hello;
+  double connect_timeout_s = 5;  ///< per attempt: channel ready + welcome
+  double backoff_initial_s = 0.02;
+  double backoff_max_s = 1.0;
+  /// How often the network thread looks for a new proxy sample when idle.
+  double poll_interval_s = 100e-6;
+};
+
+/// Statistics any thread may read (a consistent copy under a mutex; the
+/// servo thread never calls this).
+struct SessionStats {
+  std::uint64_t poses_sent = 0;
+  std::uint64_t updates = 0;          ///< ContactUpdates received
+  std::uint64_t bad_updates = 0;      ///< rejected by IrFromContactUpdate
+  std::uint64_t contact_updates = 0;  ///< updates with at least one row
+  std::uint64_t connects = 0;         ///< successful hello/welcome exchanges
+  std::uint64_t disconnects = 0;      ///< streams that ended other than by Stop
+  std::uint64_t failed_attempts = 0;  ///< reconnect attempts that failed
+  std::uint64_t rtt_samples = 0;
+  double rtt_p50_us = 0, rtt_p99_us = 0, rtt_max_us = 0, rtt_mean_us = 0;
+  double server_compute_p50_us = 0, server_compute_p99_us = 0;
+  double max_depth = 0;  ///< m, deepest PD reported
+  std::string last_error;
+  std::string session_id;  ///< of the current (or last) stream
+};
+
+class Session {
+ public:
+  explicit Session(SessionOptions options,
+                   const device::Clock* clock = &device::SteadyClock::Instance());
+  ~Session();
+  Session(const Session&) = delete;
+  Session& operator=(const Session&) = delete;
+
+  /// Sends the hello and reads the welcome (the first one: later welcomes
+  /// after reconnects do not change it). Throws SessionError with the
+  /// server's status (e.g. "NOT_FOUND: scene 'x'") or a timeout.
+  void Connect();
+  const v1::Welcome& welcome() const { return welcome_; }
+  /// The probe's mesh frame A in the proxy frame P (P: A moved to the
+  /// probe's centre of mass, same axes). Valid after Connect().
+  device::Pose X_PA() const { return X_PA_; }
+
+  /// Starts the network thread against `loop` (which must outlive Stop()).
+  /// Requires Connect().
+  void Start(device::ServoLoop* loop);
+  /// Ends the stream (half-close) and joins the threads. Idempotent.
+  void Stop();
+
+  bool connected() const { return connected_.load(); }
+  /// A thread-safe snapshot.
+  SessionStats stats() const;
+
+ private:
+  struct Stream;
+  std::unique_ptr<Stream> Open(bool first, std::string* error, grpc::StatusCode* code);
+  void Run(std::stop_token st);
+  void Serve(Stream& s, std::stop_token st);
+  void ReadLoop(Stream* s);
+
+  SessionOptions options_;
+  const device::Clock* clock_;
+  v1::Welcome welcome_;
+  device::Pose X_PA_, X_AP_;
+  device::ServoLoop* loop_ = nullptr;
+  std::unique_ptr<Stream> first_;  // from Connect(), used by the first Serve
+
+  // Cancels whatever blocks the network thread on Stop().
+  std::mutex ctx_mu_;
+  grpc::ClientContext* live_ctx_ = nullptr;
+  std::atomic<bool> stopping_{false};
+  std::atomic<bool> connected_{false};
+
+  // Pose send times, by sequence (written by the network thread, read by
+  // the reader thread).
+  static constexpr std::size_t kRing = 4096;
+  std::array<std::atomic<std::uint64_t>, kRing> sent_seq_{};
+  std::array<std::atomic<std::int64_t>, kRing> sent_ns_{};
+
+  mutable std::mutex stats_mu_;
+  SessionStats counters_;
+  device::Histogram rtt_us_{0, 100'000, 10'000};
+  device::Histogram compute_us_{0, 100'000, 10'000};
+
+  std::jthread thread_;
+};
+
+}  // namespace hapticpd::client
