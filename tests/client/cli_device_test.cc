@@ -13,41 +13,14 @@
 #include <sstream>
 #include <string>
 
+#include "tests/cli_runner.h"
 #include "tests/server/server_harness.h"
 
 namespace hapticpd {
 namespace {
 
-struct RunResult {
-  int exit_code = -1;
-  std::string out, err;
-};
-
-RunResult RunCli(const std::string& args) {
-  static std::atomic<int> counter{0};
-  const std::filesystem::path err_path =
-      std::filesystem::temp_directory_path() /
-      ("hapticpd_device_test_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
-  const std::string cmd =
-      std::string("'") + HAPTICPD_CLI_PATH + "' " + args + " 2>'" + err_path.string() + "'";
-  RunResult r;
-  FILE* pipe = ::popen(cmd.c_str(), "r");
-  if (pipe == nullptr) {
-    ADD_FAILURE() << "popen failed for: " << cmd;
-    return r;
-  }
-  char buf[4096];
-  std::size_t n = 0;
-  while ((n = std::fread(buf, 1, sizeof(buf), pipe)) > 0) r.out.append(buf, n);
-  const int status = ::pclose(pipe);
-  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream err(err_path);
-  std::ostringstream ss;
-  ss << err.rdbuf();
-  r.err = ss.str();
-  std::filesystem::remove(err_path);
-  return r;
-}
+using testing::RunCli;
+using testing::RunResult;
 
 int Lines(const std::string& s) {
   int n = 0;
