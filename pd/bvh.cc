@@ -176,46 +176,6 @@ bool BoxesOverlap(const BoxFrame& f, const BvhNode& a, const BvhNode& b, double 
   return true;
 }
 
-bool BoxesSweptEnter(const BoxFrame& f, const BvhNode& a, const BvhNode& b, const Vec3& sweep_B,
-                     double t_max, double* t_enter, double margin) {
-  const Vec3 T = f.R * a.center + f.t - b.center;
-  const Mat3& R = f.R;
-  const Mat3& AR = f.absR;
-  const Vec3& ea = a.half;
-  const Vec3& eb = b.half;
-  double lo = 0, hi = t_max;
-  // Along axis L: |T.L + t s.L| <= r must hold at contact, with s.L the
-  // sweep's projection; clip [lo, hi] to the solutions.
-  auto clip = [&](double c, double v, double r, double len = 1.0) {
-    r += margin * len + 1e-12 * (std::abs(c) + r);  // margin, then round-off slack
-    if (v == 0) return std::abs(c) <= r;
-    double t0 = (-r - c) / v, t1 = (r - c) / v;
-    if (t0 > t1) std::swap(t0, t1);
-    lo = std::max(lo, t0);
-    hi = std::min(hi, t1);
-    return lo <= hi;
-  };
-  for (int i = 0; i < 3; ++i) {
-    if (!clip(T[i], sweep_B[i], AR.row(i).dot(ea) + eb[i])) return false;
-  }
-  for (int j = 0; j < 3; ++j) {
-    if (!clip(R.col(j).dot(T), R.col(j).dot(sweep_B), ea[j] + AR.col(j).dot(eb))) return false;
-  }
-  for (int i = 0; i < 3; ++i) {
-    const int i1 = (i + 1) % 3, i2 = (i + 2) % 3;
-    for (int j = 0; j < 3; ++j) {
-      const int j1 = (j + 1) % 3, j2 = (j + 2) % 3;
-      const double c = T[i2] * R(i1, j) - T[i1] * R(i2, j);
-      const double v = sweep_B[i2] * R(i1, j) - sweep_B[i1] * R(i2, j);
-      const double r =
-          eb[i1] * AR(i2, j) + eb[i2] * AR(i1, j) + ea[j1] * AR(i, j2) + ea[j2] * AR(i, j1);
-      if (!clip(c, v, r)) return false;
-    }
-  }
-  *t_enter = lo;
-  return true;
-}
-
 SweptBoxFrame::SweptBoxFrame(const Pose& X_BA, const Vec3& sweep_B) : f(X_BA), sweep(sweep_B) {
   const Mat3& R = f.R;
   for (int i = 0; i < 3; ++i) v[i] = sweep_B[i];
@@ -236,7 +196,9 @@ bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const BvhNode& b
   const Vec3& ea = a.half;
   const Vec3& eb = b.half;
   double lo = 0, hi = t_max;
-  // As in the overload above, with t0 = (-r - c) / v computed as products.
+  // Along axis L: |T.L + t s.L| <= r must hold at contact, with s.L the
+  // sweep's projection; clip [lo, hi] to the solutions (t0 = (-r - c) / v,
+  // as products with the precomputed reciprocal).
   auto clip = [&](int k, double c, double r) {
     r += margin + 1e-12 * (std::abs(c) + r);
     const double v = sf.v[k];

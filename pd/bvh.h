@@ -73,16 +73,6 @@ struct BoxFrame {
 bool BoxesOverlap(const BoxFrame& f, const BvhNode& a, const BvhNode& b, double margin,
                   const Vec3& sweep_B);
 
-/// Time interval of overlap of box a, moving by t * sweep_B for t in
-/// [0, t_max], with box b, from the same 15 axes (a conservative superset of
-/// the true interval). Returns false when no axis admits overlap in
-/// [0, t_max]; otherwise *t_enter is a lower bound on the first contact time
-/// of anything inside the boxes.
-/// `margin` inflates both boxes (m): the interval then covers every time at
-/// which the boxes are within `margin` of each other.
-bool BoxesSweptEnter(const BoxFrame& f, const BvhNode& a, const BvhNode& b, const Vec3& sweep_B,
-                     double t_max, double* t_enter, double margin = 0);
-
 /// A BoxFrame with a sweep: the sweep's projection on each of the 15 axes
 /// and its reciprocal are fixed for a whole query, so they are computed once
 /// and the per-pair test needs no division.
@@ -94,8 +84,13 @@ struct SweptBoxFrame {
   SweptBoxFrame(const Pose& X_BA, const Vec3& sweep_B);
 };
 
-/// Same as BoxesSweptEnter above (identical intervals), with the sweep's
-/// per-axis terms taken from `sf`.
+/// Time interval of overlap of box a, moving by t * sf.sweep for t in
+/// [0, t_max], with box b, from the same 15 axes as BoxesOverlap (a
+/// conservative superset of the true interval). Returns false when no axis
+/// admits overlap in [0, t_max]; otherwise *t_enter is a lower bound on the
+/// first contact time of anything inside the boxes. `margin` inflates both
+/// boxes (m): the interval then covers every time at which the boxes are
+/// within `margin` of each other.
 bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const BvhNode& b, double t_max,
                      double* t_enter, double margin = 0);
 
