@@ -73,20 +73,24 @@ struct BoxFrame {
 bool BoxesOverlap(const BoxFrame& f, const BvhNode& a, const BvhNode& b, double margin,
                   const Vec3& sweep_B);
 
-/// A BoxFrame with a sweep: the sweep's projection on each of the 15 axes
-/// and its reciprocal are fixed for a whole query, so they are computed once
-/// and the per-pair test needs no division.
+/// A BoxFrame with a sweep: the sweep's projection on each of the 6 face
+/// axes and its reciprocal are fixed for a whole query, so they are computed
+/// once and the per-pair test needs no division.
 struct SweptBoxFrame {
   BoxFrame f;
-  Vec3 sweep;                  ///< displacement of A, in B
-  std::array<double, 15> v;    ///< sweep . axis (B axes, A axes, cross axes)
-  std::array<double, 15> inv;  ///< 1 / v (unused where v == 0)
+  Vec3 sweep;                 ///< displacement of A, in B
+  std::array<double, 6> v;    ///< sweep . axis (B axes, then A axes)
+  std::array<double, 6> inv;  ///< 1 / v (unused where v == 0)
+  double r[3][3];             ///< f.R, f.absR and f.t as plain arrays for the
+  double ar[3][3];            ///< per-pair test's scalar code
+  double t[3];
   SweptBoxFrame(const Pose& X_BA, const Vec3& sweep_B);
 };
 
 /// Time interval of overlap of box a, moving by t * sf.sweep for t in
-/// [0, t_max], with box b, from the same 15 axes as BoxesOverlap (a
-/// conservative superset of the true interval). Returns false when no axis
+/// [0, t_max], with box b, from the 6 face axes of the two boxes (a
+/// conservative superset of the true interval: the cross axes cost more
+/// than the visits they save). Returns false when no axis
 /// admits overlap in [0, t_max]; otherwise *t_enter is a lower bound on the
 /// first contact time of anything inside the boxes. `margin` inflates both
 /// boxes (m): the interval then covers every time at which the boxes are
