@@ -3,6 +3,8 @@
 // and a cup), an observer, and a simulated hand pressing a stick probe into
 // the cup's floor through the network Session and the 1 kHz servo loop, first in
 // PDt then in PDg. Prints a short report and writes trace.csv and force.svg.
+// `--scene FILE.json` runs a scene file instead (server/scene_file.h): its
+// bodies, probe, PD mode (PDt then PDg when it names none) and effects.
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -12,16 +14,23 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <memory>
+#include <optional>
+#include <stdexcept>
 #include <thread>
 #include <vector>
 
+#include "client/bench/svg.h"
 #include "client/commands.h"
 #include "client/session.h"
 #include "device/replay_device.h"
 #include "device/servo_loop.h"
 #include "device/simulated_device.h"
 #include "hapticpd/v1/scene.grpc.pb.h"
+#include "pd/mesh.h"
+#include "server/convert.h"
+#include "server/scene_file.h"
 #include "server/server.h"
 
 namespace hapticpd::cli {
@@ -33,6 +42,9 @@ using device::Vec3;
 struct DemoOptions {
   double duration = 3;  // per mode
   std::string out = "hapticpd-demo";
+  std::string scene_file;        // empty: the built-in scene
+  std::string script = "slide";  // with --scene
+  double travel = 0.01;          // with --scene: m the hand goes down from the start
 };
 
 Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
@@ -61,19 +73,46 @@ v1::Body AddShape(v1::SceneService::Stub& stub, const std::string& shape, const 
 
 struct Run {
   std::string mode;
+  std::string effects;  // the servo loop's effect stages
   device::ServoStats stats;
   client::SessionStats net;
   std::vector<device::TrajectorySample> samples;
   bool realtime = false;
 };
 
-Run RunMode(const std::string& mode, int port, const Vec3& cup_at, const Vec3& cup_max,
-            double duration) {
+/// What one run uses: scene, probe, mode, effects, hand script.
+struct RunSpec {
+  std::string mode;  // "none", "pdt" or "pdg"
+  int port = 0;
+  std::string scene_id = "default";
+  std::string probe_shape = "stick";
+  std::optional<v1::InlineMesh> probe_mesh;  // instead of probe_shape
+  device::EffectSet effects = device::EffectSet::Legacy();
+  device::EffectParams effect_params;
+  device::ScriptParams script;  // duration_s is set per run
+  /// The probe's lowest point starts 5 mm above this point.
+  Vec3 above = Vec3::Zero();
+};
+
+const char* ModeLabel(const std::string& mode) {
+  return mode == "pdg" ? "PDg" : mode == "pdt" ? "PDt" : "none";
+}
+
+v1::PdMode ModeOf(const std::string& mode) {
+  return mode == "pdg" ? v1::PD_MODE_PDG : mode == "pdt" ? v1::PD_MODE_PDT : v1::PD_MODE_NONE;
+}
+
+Run RunMode(const RunSpec& spec, double duration) {
+  const std::string& mode = spec.mode;
   client::SessionOptions so;
-  so.server = "127.0.0.1:" + std::to_string(port);
-  so.hello.set_scene_id("default");
-  so.hello.set_mode(mode == "pdg" ? v1::PD_MODE_PDG : v1::PD_MODE_PDT);
-  so.hello.set_probe_shape("stick");
+  so.server = "127.0.0.1:" + std::to_string(spec.port);
+  so.hello.set_scene_id(spec.scene_id);
+  so.hello.set_mode(ModeOf(mode));
+  if (spec.probe_mesh) {
+    *so.hello.mutable_probe_mesh() = *spec.probe_mesh;
+  } else {
+    so.hello.set_probe_shape(spec.probe_shape);
+  }
   so.hello.set_client_name("hapticpd demo (" + mode + ")");
   client::Session session(so);
   try {
@@ -83,14 +122,9 @@ Run RunMode(const std::string& mode, int port, const Vec3& cup_at, const Vec3& c
   }
   const v1::Welcome& w = session.welcome();
   const double below_com = w.probe_body_frame().position().z() - w.probe_mesh_info().aabb_min().z();
-  // Above the cup's axis, the stick's tip 5 mm above the rim; the hand
-  // pushes the tip down to 5 mm below the cup's base, i.e. into its floor.
-  const Vec3 start(cup_at.x(), cup_at.y(), cup_max.z() + below_com + 0.005);
-  const double travel = (cup_max.z() - cup_at.z()) + 0.01;
-  device::ScriptParams sp;
-  sp.script = device::HandScript::kPress;
+  const Vec3 start = spec.above + Vec3(0, 0, std::max(0.0, below_com) + 0.005);
+  device::ScriptParams sp = spec.script;
   sp.duration_s = duration;
-  sp.travel = travel;
   const auto& clock = device::SteadyClock::Instance();
   device::SimulatedDevice sim(sp, &clock);
   device::RecordingDevice rec(&sim, static_cast<std::size_t>(duration * 1100) + 2000);
@@ -98,6 +132,8 @@ Run RunMode(const std::string& mode, int port, const Vec3& cup_at, const Vec3& c
   device::ServoConfig config;
   config.X_PA = session.X_PA();
   config.X_WD = Pose::FromTranslation(start);
+  config.effects = spec.effects;
+  config.effect_params = spec.effect_params;
   device::ServoLoop loop(&rec, config, &clock);
   session.Start(&loop);
   loop.Start();
@@ -107,11 +143,33 @@ Run RunMode(const std::string& mode, int port, const Vec3& cup_at, const Vec3& c
   rec.Close();
   Run r;
   r.mode = mode;
+  r.effects = loop.effects().description();
   r.stats = loop.stats();
   r.net = session.stats();
   r.samples = rec.samples();
   r.realtime = loop.got_realtime_priority();
   return r;
+}
+
+/// The bounding box (world) of a scene's bodies; zero for an empty scene.
+std::pair<Vec3, Vec3> SceneBox(const v1::Scene& scene) {
+  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity());
+  Vec3 hi = -lo;
+  for (const v1::Body& b : scene.bodies()) {
+    const auto& q = b.pose().orientation();
+    const Vec3 t = ToVec(b.pose().position());
+    const Pose X = b.pose().has_orientation()
+                       ? Pose::FromQuaternion(device::Quat(q.w(), q.x(), q.y(), q.z()), t)
+                       : Pose::FromTranslation(t);
+    const Vec3 a = ToVec(b.mesh_info().aabb_min()), c = ToVec(b.mesh_info().aabb_max());
+    for (int i = 0; i < 8; ++i) {
+      const Vec3 p((i & 1) ? c.x() : a.x(), (i & 2) ? c.y() : a.y(), (i & 4) ? c.z() : a.z());
+      lo = lo.cwiseMin(X * p);
+      hi = hi.cwiseMax(X * p);
+    }
+  }
+  if (!lo.allFinite()) lo = hi = Vec3::Zero();
+  return {lo, hi};
 }
 
 void WriteCsv(const std::filesystem::path& path, const std::vector<Run>& runs) {
@@ -134,9 +192,8 @@ void WriteCsv(const std::filesystem::path& path, const std::vector<Run>& runs) {
 }
 
 /// Force magnitude (N) and torque magnitude (x100, N cm) versus time, one
-/// panel per mode, plain SVG.
+/// panel per mode, plain SVG (client/bench/svg.h).
 void WriteSvg(const std::filesystem::path& path, const std::vector<Run>& runs) {
-  const double W = 760, H = 220, L = 60, R = 20, T = 30, B = 40;
   double tmax = 0.1, fmax = 0.5;
   for (const Run& r : runs) {
     for (const auto& s : r.samples) {
@@ -144,53 +201,30 @@ void WriteSvg(const std::filesystem::path& path, const std::vector<Run>& runs) {
       fmax = std::max({fmax, s.F_cmd_D.force.norm(), 100 * s.F_cmd_D.torque.norm()});
     }
   }
-  fmax *= 1.1;
-  std::ofstream f(path);
-  if (!f) throw CommandError("demo: cannot write " + path.string());
-  const double total_h = H * static_cast<double>(runs.size());
-  f << "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W << "\" height=\"" << total_h
-    << "\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" "
-       "fill=\"white\"/>\n";
-  char buf[256];
-  for (std::size_t k = 0; k < runs.size(); ++k) {
-    const double y0 = H * static_cast<double>(k);
-    const double pw = W - L - R, ph = H - T - B;
-    auto X = [&](double t) { return L + pw * t / tmax; };
-    auto Y = [&](double v) { return y0 + T + ph * (1 - v / fmax); };
-    std::snprintf(buf, sizeof(buf),
-                  "<text x=\"%g\" y=\"%g\" font-weight=\"bold\">%s: force |F| (N, blue), torque "
-                  "|tau| (N cm, red) vs time (s)</text>\n",
-                  L, y0 + 18, runs[k].mode == "pdg" ? "PDg" : "PDt");
-    f << buf;
-    std::snprintf(buf, sizeof(buf),
-                  "<rect x=\"%g\" y=\"%g\" width=\"%g\" height=\"%g\" fill=\"none\" "
-                  "stroke=\"#888\"/>\n",
-                  L, y0 + T, pw, ph);
-    f << buf;
-    for (int i = 0; i <= 4; ++i) {
-      const double v = fmax * i / 4, t = tmax * i / 4;
-      std::snprintf(buf, sizeof(buf),
-                    "<text x=\"%g\" y=\"%g\" text-anchor=\"end\">%.2g</text>\n"
-                    "<text x=\"%g\" y=\"%g\" text-anchor=\"middle\">%.2g</text>\n",
-                    L - 4, Y(v) + 4, v, X(t), y0 + H - B + 16, t);
-      f << buf;
-    }
-    for (int which = 0; which < 2; ++which) {
-      f << "<polyline fill=\"none\" stroke=\"" << (which == 0 ? "#1f5fbf" : "#c0392b")
-        << "\" stroke-width=\"1.2\" points=\"";
-      const auto& ss = runs[k].samples;
-      const std::size_t step = std::max<std::size_t>(1, ss.size() / 1500);
-      for (std::size_t i = 0; i < ss.size(); i += step) {
-        const double v =
-            which == 0 ? ss[i].F_cmd_D.force.norm() : 100 * ss[i].F_cmd_D.torque.norm();
-        std::snprintf(buf, sizeof(buf), "%.1f,%.1f ", X(ss[i].t_s), Y(v));
-        f << buf;
-      }
-      f << "\"/>\n";
+  svg::Figure fig;
+  for (const Run& r : runs) {
+    svg::Panel& p = fig.panels.emplace_back();
+    p.title = std::string(ModeLabel(r.mode)) +
+              ": force |F| (N, blue), torque |tau| (N cm, red) vs time (s)";
+    p.x_min = 0;
+    p.x_max = tmax;
+    p.y_min = 0;
+    p.y_max = 1.1 * fmax;
+    svg::Series& force = p.series.emplace_back();
+    svg::Series& torque = p.series.emplace_back();
+    torque.color = "#c0392b";
+    for (const auto& s : r.samples) {
+      force.x.push_back(s.t_s);
+      force.y.push_back(s.F_cmd_D.force.norm());
+      torque.x.push_back(s.t_s);
+      torque.y.push_back(100 * s.F_cmd_D.torque.norm());
     }
   }
-  f << "</svg>\n";
-  if (!f) throw CommandError("demo: error writing " + path.string());
+  try {
+    svg::Write(path, fig);
+  } catch (const std::runtime_error& e) {
+    throw CommandError(std::string("demo: ") + e.what());
+  }
 }
 
 void RunDemo(const DemoOptions& o) {
@@ -202,22 +236,90 @@ void RunDemo(const DemoOptions& o) {
   std::filesystem::create_directories(out, ec);
   if (ec) throw CommandError("demo: --out: cannot create " + out.string() + ": " + ec.message());
 
+  if (!(o.travel >= 0) || o.travel > 0.2) {
+    throw CommandError("demo: --travel: expected 0 to 0.2 m");
+  }
+  RunSpec base;
+  std::optional<server::SceneFile> file;
+  if (!o.scene_file.empty()) {
+    try {
+      file = server::ParseSceneFile(o.scene_file);
+      base.script.script = device::ParseHandScript(o.script);
+    } catch (const server::SceneFileError& e) {
+      throw CommandError(std::string("demo: --scene: ") + e.what());
+    } catch (const std::invalid_argument& e) {
+      throw CommandError(std::string("demo: --script: ") + e.what());
+    }
+    if (!file->probe.mesh_path.empty()) {
+      try {
+        server::ToProto(pd::LoadMesh(file->probe.mesh_path), &base.probe_mesh.emplace());
+      } catch (const pd::MeshError& e) {
+        throw CommandError("demo: --scene: " + o.scene_file + ": probe.mesh: " + e.what());
+      }
+    } else if (!file->probe.shape.empty()) {
+      base.probe_shape = file->probe.shape;
+    }
+  }
+
   const auto level = spdlog::get_level();
   spdlog::set_level(spdlog::level::warn);  // the in-process server's info lines
   server::ServerOptions so;
   so.listen = "127.0.0.1:0";
   so.status_interval_s = 0;
   so.shutdown_grace_s = 0.5;
+  if (file) so.scene_files = {o.scene_file};  // loaded as `serve --scene` loads it
   server::HapticServer server(so);
-  server.Start();
+  try {
+    server.Start();
+  } catch (const std::runtime_error& e) {
+    spdlog::set_level(level);
+    throw CommandError(std::string("demo: ") + e.what());
+  }
   const int port = server.port();
+  base.port = port;
   auto channel =
       grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials());
   auto scenes = v1::SceneService::NewStub(channel);
-  const v1::Body knot = AddShape(*scenes, "torusknot", "knot", Vec3::Zero());
-  const Vec3 kmin = ToVec(knot.mesh_info().aabb_min());
-  const Vec3 cup_at(kmin.x() - 0.09, 0, kmin.z());  // clear of the knot
-  const v1::Body cup = AddShape(*scenes, "cup", "cup", cup_at);
+  std::vector<std::string> modes = {"pdt", "pdg"};
+  char scene_line[512];
+  if (!file) {
+    const v1::Body knot = AddShape(*scenes, "torusknot", "knot", Vec3::Zero());
+    const Vec3 kmin = ToVec(knot.mesh_info().aabb_min());
+    const Vec3 cup_at(kmin.x() - 0.09, 0, kmin.z());  // clear of the knot
+    const v1::Body cup = AddShape(*scenes, "cup", "cup", cup_at);
+    const Vec3 cup_max = cup_at + ToVec(cup.mesh_info().aabb_max());
+    // Above the cup's axis, the stick's tip 5 mm above the rim; the hand
+    // pushes the tip down to 5 mm below the cup's base, i.e. into its floor.
+    base.above = Vec3(cup_at.x(), cup_at.y(), cup_max.z());
+    base.script.script = device::HandScript::kPress;
+    base.script.travel = (cup_max.z() - cup_at.z()) + 0.01;
+    std::snprintf(scene_line, sizeof(scene_line),
+                  "scene 'default': torus knot (%u triangles) and cup (%u triangles), probe: stick",
+                  knot.mesh_info().triangles(), cup.mesh_info().triangles());
+  } else {
+    base.scene_id = file->scene_id;
+    grpc::ClientContext ctx;
+    v1::GetSceneRequest req;
+    req.set_scene_id(base.scene_id);
+    v1::Scene scene;
+    if (const grpc::Status s = scenes->GetScene(&ctx, req, &scene); !s.ok()) {
+      throw CommandError("demo: GetScene: " + s.error_message());
+    }
+    // Centred above the scene's bounding box; the hand goes down by --travel.
+    const auto [lo, hi] = SceneBox(scene);
+    base.above = Vec3(0.5 * (lo.x() + hi.x()), 0.5 * (lo.y() + hi.y()), hi.z());
+    base.script.travel = o.travel + 0.005;  // from 5 mm above the top
+    base.effects = client::EffectsFromSceneConfig(scene.config());
+    base.effect_params = client::EffectParamsFromSceneConfig(scene.config());
+    if (scene.config().pd_mode() != v1::PD_MODE_UNSPECIFIED) {
+      modes = {server::PdModeName(scene.config().pd_mode())};
+    }
+    std::snprintf(scene_line, sizeof(scene_line),
+                  "scene '%s' from %s: %d bodies, probe: %s, effects: %s, script: %s",
+                  base.scene_id.c_str(), o.scene_file.c_str(), scene.bodies_size(),
+                  base.probe_mesh ? file->probe.mesh_path.c_str() : base.probe_shape.c_str(),
+                  base.effects.ToString().c_str(), device::ToString(base.script.script));
+  }
 
   // An observer, as a viewer would attach one.
   grpc::ClientContext watch_ctx;
@@ -225,7 +327,7 @@ void RunDemo(const DemoOptions& o) {
   std::atomic<double> observed_depth{0};
   std::thread watcher([&] {
     v1::WatchRequest req;
-    req.set_scene_id("default");
+    req.set_scene_id(base.scene_id);
     req.set_rate_hz(60);
     auto reader = scenes->Watch(&watch_ctx, req);
     v1::SceneEvent ev;
@@ -240,16 +342,14 @@ void RunDemo(const DemoOptions& o) {
     reader->Finish();
   });
 
-  std::printf(
-      "hapticpd demo: server on 127.0.0.1:%d, scene 'default': torus knot (%u triangles) "
-      "and cup (%u triangles), probe: stick\n",
-      port, knot.mesh_info().triangles(), cup.mesh_info().triangles());
+  std::printf("hapticpd demo: server on 127.0.0.1:%d, %s\n", port, scene_line);
   std::vector<Run> runs;
-  for (const char* mode : {"pdt", "pdg"}) {
-    std::printf("  running %s for %.1f s ...\n", mode, o.duration);
+  for (const std::string& mode : modes) {
+    std::printf("  running %s for %.1f s ...\n", mode.c_str(), o.duration);
     std::fflush(stdout);
-    runs.push_back(
-        RunMode(mode, port, cup_at, cup_at + ToVec(cup.mesh_info().aabb_max()), o.duration));
+    RunSpec spec = base;
+    spec.mode = mode;
+    runs.push_back(RunMode(spec, o.duration));
   }
   watch_ctx.TryCancel();
   watcher.join();
@@ -262,9 +362,8 @@ void RunDemo(const DemoOptions& o) {
   for (const Run& r : runs) {
     const double mean = r.stats.period_us.mean();
     std::printf("%-5s %10.1f %9.0f %9.1f %6llu %9llu %9llu %9.0f %9.0f %9.0f %9.2f %9.3f\n",
-                r.mode == "pdg" ? "PDg" : "PDt", mean > 0 ? 1e6 / mean : 0.0,
-                r.stats.period_us.Quantile(0.99), r.stats.period_us.stddev(),
-                static_cast<unsigned long long>(r.stats.late_ticks),
+                ModeLabel(r.mode), mean > 0 ? 1e6 / mean : 0.0, r.stats.period_us.Quantile(0.99),
+                r.stats.period_us.stddev(), static_cast<unsigned long long>(r.stats.late_ticks),
                 static_cast<unsigned long long>(r.net.updates),
                 static_cast<unsigned long long>(r.net.contact_updates), r.net.rtt_p50_us,
                 r.net.rtt_p99_us, r.net.server_compute_p50_us, r.stats.max_force,
@@ -273,18 +372,20 @@ void RunDemo(const DemoOptions& o) {
   std::printf(
       "(period p99 and jitter = std of the period in us; rtt = pose sent -> its "
       "ContactUpdate, us; PD = server PD time, us; peak F in N, peak dF in N per tick)\n");
-  std::printf(
-      "energy into the hand: PDt %.4f J, PDg %.4f J; observer: %llu frames, deepest "
-      "probe %.2f mm%s\n",
-      runs[0].stats.energy_into_hand_j, runs[1].stats.energy_into_hand_j,
-      static_cast<unsigned long long>(frames.load()), 1e3 * observed_depth.load(),
-      runs[0].realtime ? "; servo thread SCHED_FIFO" : "");
+  std::printf("energy into the hand:");
+  for (const Run& r : runs)
+    std::printf(" %s %.4f J", ModeLabel(r.mode), r.stats.energy_into_hand_j);
+  std::printf("; observer: %llu frames, deepest probe %.2f mm%s\n",
+              static_cast<unsigned long long>(frames.load()), 1e3 * observed_depth.load(),
+              runs[0].realtime ? "; servo thread SCHED_FIFO" : "");
+  std::printf("servo effects: %s\n", runs[0].effects.c_str());
   WriteCsv(out / "trace.csv", runs);
   WriteSvg(out / "force.svg", runs);
   std::printf("wrote %s and %s\n", (out / "trace.csv").c_str(), (out / "force.svg").c_str());
   for (const Run& r : runs) {
-    if (r.net.contact_updates == 0) {
-      throw CommandError("demo: the " + r.mode + " run never touched the cup");
+    if (r.mode != "none" && r.net.contact_updates == 0) {
+      throw CommandError("demo: the " + r.mode + " run never touched the " +
+                         (file ? "scene" : "cup"));
     }
   }
 }
@@ -296,6 +397,14 @@ void RegisterDemo(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "demo",
       "Everything in one process: server, procedural scene, simulated device (PDt then PDg)");
+  cmd->add_option("--scene", o->scene_file,
+                  "Scene file (JSON; README \"Scene files\"): bodies, probe, PD mode, effects");
+  cmd->add_option("--script", o->script,
+                  "With --scene: hand script (hold, press, slide, twist, circle, loop, plate)")
+      ->capture_default_str();
+  cmd->add_option("--travel", o->travel,
+                  "With --scene: how far (m) the hand goes below the scene's top")
+      ->capture_default_str();
   cmd->add_option("--duration", o->duration, "Seconds per mode")->capture_default_str();
   cmd->add_option("--out", o->out, "Folder for trace.csv and force.svg")->capture_default_str();
   cmd->callback([o] { RunDemo(*o); });

@@ -179,6 +179,9 @@ void RunDevice(const DeviceOptions& o) {
   device::ServoConfig config;
   config.X_PA = session.X_PA();
   config.X_WD = X_WD;
+  // The scene's declared effects (Welcome.scene_config).
+  config.effects = client::EffectsFromSceneConfig(session.welcome().scene_config());
+  config.effect_params = client::EffectParamsFromSceneConfig(session.welcome().scene_config());
   device::ServoLoop loop(used, config, &clock);
   session.Start(&loop);
   loop.Start();

@@ -66,8 +66,8 @@ void RegisterServe(CLI::App& app) {
   cmd->add_option("--tls-key", s.tls_key, "PEM private key for --tls-cert")
       ->check(CLI::ExistingFile);
   cmd->add_option("--scene", s.scene_files,
-                  "Scene file (JSON) to preload; repeatable. Without one: an empty scene "
-                  "'default'")
+                  "Scene file (JSON: bodies, probe, PD mode, effects; README \"Scene files "
+                  "and effects\") to preload; repeatable. Without one: an empty scene 'default'")
       ->check(CLI::ExistingFile);
   cmd->add_option("--status-interval", s.status_interval_s,
                   "Seconds between status lines (0: none)")

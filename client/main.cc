@@ -22,6 +22,8 @@ int main(int argc, char** argv) {
   hapticpd::cli::RegisterWatchCouple(app);
   hapticpd::cli::RegisterDevice(app);
   hapticpd::cli::RegisterDemo(app);
+  hapticpd::cli::RegisterBench(app);
+  hapticpd::cli::RegisterObserve(app);
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
   try {
     app.parse(argc, argv);

@@ -122,7 +122,14 @@ bool IrFromContactUpdate(const v1::ContactUpdate& u, const Pose& X_AP, std::int6
     n /= n_norm;
     // The moment about the proxy origin, recomputed (it is the wire's
     // `moment` when the server's CoM and X_AP agree).
-    const IrRow row{p, n, (p - c).cross(n), depth, k};
+    // A server answering for a scene without torque sends no moments: the
+    // row is then a pure force.
+    IrRow row{p, n, r.has_moment() ? Vec3((p - c).cross(n)) : Vec3::Zero(), depth, k};
+    row.static_friction =
+        std::isfinite(r.static_friction()) ? std::max(0.0, r.static_friction()) : 0;
+    row.dynamic_friction =
+        std::isfinite(r.dynamic_friction()) ? std::max(0.0, r.dynamic_friction()) : 0;
+    row.damping = std::isfinite(r.damping()) ? std::max(0.0, r.damping()) : 0;
     if (ir->num_rows < device::kMaxIrRows) {
       ir->rows[static_cast<std::size_t>(ir->num_rows++)] = row;
       continue;
@@ -288,6 +295,11 @@ void Session::Stop() {
   thread_ = std::jthread();
 }
 
+void Session::StallUpdatesFor(double seconds) {
+  stall_until_ns_.store(clock_->NowNs() + static_cast<std::int64_t>(seconds * 1e9),
+                        std::memory_order_relaxed);
+}
+
 void Session::ReadLoop(Stream* s) {
   v1::CoupleResponse resp;
   device::IrMailbox& out = loop_->ir_mailbox();
@@ -295,6 +307,11 @@ void Session::ReadLoop(Stream* s) {
     if (!resp.has_update()) continue;
     const v1::ContactUpdate& u = resp.update();
     const std::int64_t now = clock_->NowNs();
+    if (now < stall_until_ns_.load(std::memory_order_relaxed)) {
+      std::lock_guard lock(stats_mu_);
+      ++counters_.withheld_updates;
+      continue;
+    }
     const bool good = IrFromContactUpdate(u, X_AP_, now, &out.back());
     if (good) out.Publish();
     // Round trip: from writing the pose to reading its answer.
@@ -420,6 +437,45 @@ SessionStats Session::stats() const {
   s.server_compute_p50_us = compute_us_.Quantile(0.5);
   s.server_compute_p99_us = compute_us_.Quantile(0.99);
   return s;
+}
+
+device::EffectSet EffectsFromSceneConfig(const v1::SceneConfig& c) {
+  if (!c.declared()) return device::EffectSet::Legacy();
+  device::EffectSet s;
+  for (int e : c.effects()) {
+    switch (e) {
+      case v1::EFFECT_CONTACT:
+        s = s.With(device::Effect::kContact);
+        break;
+      case v1::EFFECT_DAMPING:
+        s = s.With(device::Effect::kDamping);
+        break;
+      case v1::EFFECT_FRICTION:
+        s = s.With(device::Effect::kFriction);
+        break;
+      case v1::EFFECT_WEIGHT:
+        s = s.With(device::Effect::kWeight);
+        break;
+      case v1::EFFECT_TEXTURE:
+        s = s.With(device::Effect::kTexture);
+        break;
+      case v1::EFFECT_TORQUE:
+        s = s.With(device::Effect::kTorque);
+        break;
+      default:
+        break;  // unknown (newer server): not rendered
+    }
+  }
+  return s;
+}
+
+device::EffectParams EffectParamsFromSceneConfig(const v1::SceneConfig& c) {
+  device::EffectParams p;
+  if (c.has_gravity()) p.gravity = Vec3(c.gravity().x(), c.gravity().y(), c.gravity().z());
+  if (c.probe_mass() > 0) p.probe_mass = c.probe_mass();
+  if (c.texture_amplitude() > 0) p.texture_amplitude = c.texture_amplitude();
+  if (c.texture_frequency() > 0) p.texture_frequency = c.texture_frequency();
+  return p;
 }
 
 }  // namespace hapticpd::client

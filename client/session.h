@@ -53,6 +53,12 @@ namespace hapticpd::client {
 bool IrFromContactUpdate(const v1::ContactUpdate& update, const device::Pose& X_AP,
                          std::int64_t receive_time_ns, device::IntermediateRep* ir);
 
+/// The servo loop's effects for a scene's declaration (the Welcome's
+/// scene_config; one that declares nothing means contact and torque), and
+/// their parameters (gravity, probe mass, texture).
+device::EffectSet EffectsFromSceneConfig(const v1::SceneConfig& c);
+device::EffectParams EffectParamsFromSceneConfig(const v1::SceneConfig& c);
+
 /// A failed Connect (one line: what and why).
 struct SessionError : std::runtime_error {
   using std::runtime_error::runtime_error;
@@ -84,6 +90,8 @@ struct SessionStats {
   std::uint64_t connects = 0;         ///< successful hello/welcome exchanges
   std::uint64_t disconnects = 0;      ///< streams that ended other than by Stop
   std::uint64_t failed_attempts = 0;  ///< reconnect attempts that failed
+  /// Updates dropped by StallUpdatesFor (fault injection).
+  std::uint64_t withheld_updates = 0;
   std::uint64_t rtt_samples = 0;
   double rtt_p50_us = 0, rtt_p99_us = 0, rtt_max_us = 0, rtt_mean_us = 0;
   double server_compute_p50_us = 0, server_compute_p99_us = 0;
@@ -116,6 +124,11 @@ class Session {
   void Stop();
 
   bool connected() const { return connected_.load(); }
+  /// Fault injection for tests: every ContactUpdate that arrives during the
+  /// next `seconds` is withheld from the servo loop, as if the server had
+  /// stopped answering while the stream stays up. Any thread. When unused it
+  /// costs the reader thread one relaxed atomic load per update.
+  void StallUpdatesFor(double seconds);
   /// A thread-safe snapshot.
   SessionStats stats() const;
 
@@ -138,6 +151,7 @@ class Session {
   grpc::ClientContext* live_ctx_ = nullptr;
   std::atomic<bool> stopping_{false};
   std::atomic<bool> connected_{false};
+  std::atomic<std::int64_t> stall_until_ns_{0};  // StallUpdatesFor (clock_ time)
 
   // Pose send times, by sequence (written by the network thread, read by
   // the reader thread).

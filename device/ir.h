@@ -32,6 +32,10 @@ struct IrRow {
   Vec3 m_W = Vec3::Zero();  ///< (p_W - c_ref) x n_W
   double depth = 0;         ///< m, >= 0 at X_WP_ref
   double stiffness = 0;     ///< N/m
+  /// The body's material, for the friction and damping effects (effects.h).
+  double static_friction = 0;
+  double dynamic_friction = 0;
+  double damping = 0;  ///< N s/m
 };
 
 struct IntermediateRep {

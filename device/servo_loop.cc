@@ -43,7 +43,14 @@ ServoLoop::ServoLoop(HapticDevice* device, const ServoConfig& config, const Cloc
       config_(config),
       clock_(clock),
       coupling_(config.coupling ? *config.coupling : ChooseCoupling(device->info(), config.design)),
-      eval_(config.ir) {}
+      eval_(config.ir) {
+  // Compose the declared effects once; a scene without torque renders 3-DoF.
+  EffectParams fx = config_.effect_params;
+  fx.proxy_mass = coupling_.proxy.mass;
+  fx.period_s = config_.period_s;
+  effects_ = EffectPipeline(config_.effects, fx);
+  if (!config_.effects.Has(Effect::kTorque)) coupling_.gains.max_torque = 0;
+}
 
 ServoLoop::~ServoLoop() { Stop(); }
 
@@ -51,6 +58,7 @@ void ServoLoop::ClearStats() { stats_.Clear(); }
 
 void ServoLoop::ResetContact() {
   eval_.Reset();
+  effects_.Reset();
   engaged_ = false;
   quiet_count_ = 0;
   startup_gain_ = 0;
@@ -114,7 +122,32 @@ void ServoLoop::Tick(std::int64_t now_ns) {
     if (r.ir.outside_validity) ++stats_.outside_ticks;
   }
 
-  StepProxy(coupling_, r.X_WH, v_WH, w_WH, r.W_ir, K_ir, h, &proxy_);
+  // Effects hook (effects.h): only the stages the scene declared run.
+  Mat6 K_fx;
+  effects_.Apply(EffectInput{&eval_.current(), r.W_ir, K_ir, proxy_.X_WP, proxy_.v_W, proxy_.w_W,
+                             1e-9 * static_cast<double>(now_ns)},
+                 &r.W_effects, &K_fx);
+  StepProxy(coupling_, r.X_WH, v_WH, w_WH, r.W_effects, K_fx, h, &proxy_);
+  // Link loss (stale IR): fade the output to zero in real time (a late tick
+  // only fades faster); once it is zero, hold the proxy on the handle so the
+  // coupling stretches nothing and nothing stale is felt when IRs return.
+  // The ramp back counts ticks (a late tick never makes it a step).
+  const bool link_down = r.ir.have_ir && r.ir.stale;
+  if (link_down) {
+    link_gain_ = config_.link_fade_time_s > 0
+                     ? std::max(0.0, link_gain_ - dt / config_.link_fade_time_s)
+                     : 0.0;
+  } else if (link_gain_ < 1) {
+    link_gain_ = config_.link_fade_in_time_s > 0
+                     ? std::min(1.0, link_gain_ + h / config_.link_fade_in_time_s)
+                     : 1.0;
+  }
+  if (link_gain_ == 0) {
+    proxy_.X_WP = r.X_WH;
+    proxy_.v_W = v_WH;
+    proxy_.w_W = w_WH;
+  }
+  r.link_gain = link_gain_;
   r.proxy = proxy_;
   r.W_coupling = CouplingWrench(coupling_.gains, r.X_WH, v_WH, w_WH, proxy_, &r.clamped);
   if (r.clamped) ++stats_.clamped_ticks;
@@ -132,10 +165,9 @@ void ServoLoop::Tick(std::int64_t now_ns) {
   }
   r.startup_gain = startup_gain_;
 
-  r.F_cmd_W.force =
-      internal::ClampNorm(-startup_gain_ * r.W_coupling.force, coupling_.gains.max_force);
-  r.F_cmd_W.torque =
-      internal::ClampNorm(-startup_gain_ * r.W_coupling.torque, coupling_.gains.max_torque);
+  const double gain = startup_gain_ * link_gain_;
+  r.F_cmd_W.force = internal::ClampNorm(-gain * r.W_coupling.force, coupling_.gains.max_force);
+  r.F_cmd_W.torque = internal::ClampNorm(-gain * r.W_coupling.torque, coupling_.gains.max_torque);
   r.F_cmd_D.force = R_WD.transpose() * r.F_cmd_W.force;
   r.F_cmd_D.torque = R_WD.transpose() * r.F_cmd_W.torque;
   if (device_->Command(r.F_cmd_D) != DeviceStatus::kOk) ++stats_.device_errors;

@@ -18,6 +18,7 @@
 #include <thread>
 
 #include "device/coupling.h"
+#include "device/effects.h"
 #include "device/haptic_device.h"
 #include "device/ir.h"
 #include "device/mailbox.h"
@@ -57,12 +58,23 @@ struct ServoConfig {
   CouplingDesign design;
   IrEvalParams ir;
   StartupParams startup;
+  /// Link loss: once the IR is stale (no answer for ir.max_age_s, e.g. the
+  /// server went away), the commanded wrench fades to exactly zero over this
+  /// time (s) and the proxy is then held on the handle, so no coupling
+  /// stretch survives the loss; when fresh IRs come again it ramps back over
+  /// link_fade_in_time_s. Both are measured on the loop's clock.
+  double link_fade_time_s = 0.020;
+  double link_fade_in_time_s = 0.100;
   Pose X_WD;  ///< device base frame in the world
   Pose X_PA;  ///< probe mesh frame A in the proxy frame P (P: at the probe's centre of mass)
   /// Real-time runner: spin this long before each deadline (after sleeping).
   double spin_s = 50e-6;
   /// Real-time runner: try SCHED_FIFO at this priority (0: do not try).
   int realtime_priority = 80;
+  /// The scene's effects (effects.h), composed once at construction.
+  /// Without kTorque the loop commands no torque (3-DoF rendering).
+  EffectSet effects = EffectSet::Legacy();
+  EffectParams effect_params;  ///< proxy_mass and period_s are set by the loop
 };
 
 /// Everything one tick saw and did (for tests, traces and the recorder).
@@ -72,14 +84,16 @@ struct TickRecord {
   DeviceStatus device_status = DeviceStatus::kNotOpen;
   DeviceState state;
   Pose X_WH;
-  ProxyState proxy;          ///< after the step
-  Vec6 W_ir = Vec6::Zero();  ///< contact wrench on the proxy (W, about P)
-  Wrench W_coupling;         ///< coupling wrench on the proxy after the step
-  Wrench F_cmd_W;            ///< commanded on the handle, W
-  Wrench F_cmd_D;            ///< commanded on the handle, D
+  ProxyState proxy;               ///< after the step
+  Vec6 W_ir = Vec6::Zero();       ///< contact wrench on the proxy (W, about P)
+  Vec6 W_effects = Vec6::Zero();  ///< the declared effects' wrench on the proxy
+  Wrench W_coupling;              ///< coupling wrench on the proxy after the step
+  Wrench F_cmd_W;                 ///< commanded on the handle, W
+  Wrench F_cmd_D;                 ///< commanded on the handle, D
   IrEvalInfo ir;
   bool new_ir = false;
   double startup_gain = 0;
+  double link_gain = 1;  ///< output gain for link loss (1: fresh IR or none yet)
   bool clamped = false;
 };
 
@@ -124,6 +138,8 @@ class ServoLoop {
   const LiveCounters& live() const { return live_; }
   const Coupling& coupling() const { return coupling_; }
   const ServoConfig& config() const { return config_; }
+  /// The effect stages this loop runs, and their run counters.
+  const EffectPipeline& effects() const { return effects_; }
   /// Forget the IR and re-arm the start-up ramp (e.g. after a reconnect).
   /// Servo thread only (or between Tick calls).
   void ResetContact();
@@ -139,6 +155,7 @@ class ServoLoop {
   const Clock* clock_;
   Coupling coupling_;
   IrEvaluator eval_;
+  EffectPipeline effects_;
   IrMailbox ir_in_;
   ProxyMailbox proxy_out_;
   ServoStats stats_;
@@ -152,6 +169,7 @@ class ServoLoop {
   Vec3 last_w_W_ = Vec3::Zero();
   int quiet_count_ = 0;
   double startup_gain_ = 0;
+  double link_gain_ = 1;
   bool engaged_ = false;
   std::jthread thread_;
   std::atomic<bool> got_rt_{false};

@@ -52,7 +52,7 @@ class StoppableCall {
   virtual const Scene* scene() const = 0;
 };
 
-class ObserverHub;
+class ObserverPublishers;
 
 struct Core {
   explicit Core(const Limits& l) : limits(l), builds(1) {}
@@ -63,7 +63,7 @@ struct Core {
   SceneRegistry scenes{&signal};
   Stats stats;
   JobQueue builds;
-  ObserverHub* hub = nullptr;
+  ObserverPublishers* publishers = nullptr;
   std::atomic<bool> shutting_down{false};
   std::atomic<int> sessions{0};
   std::atomic<int> observers{0};

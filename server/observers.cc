@@ -32,10 +32,11 @@ void FillScene(const Scene& scene, const SceneSnapshot& snap, bool include_meshe
   out->set_scene_id(scene.id());
   out->set_description(scene.description());
   out->set_revision(snap.revision);
+  *out->mutable_config() = scene.config();
   for (const BodyState& b : snap.bodies) FillBody(b, include_meshes, out->add_bodies());
 }
 
-ObserverHub::ObserverHub(Core* core) : core_(core) {
+ObserverHub::ObserverHub(ScenePtr scene) : scene_(std::move(scene)) {
   thread_ = std::thread([this] { Loop(); });
 }
 
@@ -46,7 +47,7 @@ void ObserverHub::Add(WatchReactor* r) {
     std::lock_guard lock(mu_);
     observers_.push_back(r);
   }
-  core_->signal.Notify();
+  scene_->changes().Notify();
 }
 
 void ObserverHub::Remove(WatchReactor* r) {
@@ -56,12 +57,18 @@ void ObserverHub::Remove(WatchReactor* r) {
 
 void ObserverHub::Stop() {
   stop_.store(true);
-  core_->signal.Notify();
+  scene_->changes().Notify();
   if (thread_.joinable()) thread_.join();
 }
 
+bool ObserverHub::Idle() {
+  std::lock_guard lock(mu_);
+  return observers_.empty() && scene_->deleted();
+}
+
 void ObserverHub::Loop() {
-  std::uint64_t seen = core_->signal.count();
+  ChangeSignal& signal = scene_->changes();
+  std::uint64_t seen = signal.count();
   while (!stop_.load()) {
     const auto now = Clock::now();
     auto next = now + std::chrono::milliseconds(100);
@@ -69,8 +76,50 @@ void ObserverHub::Loop() {
       std::lock_guard lock(mu_);
       for (WatchReactor* r : observers_) next = std::min(next, r->Tick(now));
     }
-    seen = core_->signal.WaitFor(seen, std::max(next, now + std::chrono::microseconds(200)));
+    seen = signal.WaitFor(seen, std::max(next, now + std::chrono::microseconds(200)));
   }
+}
+
+void ObserverPublishers::Add(WatchReactor* r) {
+  std::vector<std::unique_ptr<ObserverHub>> reaped;
+  {
+    std::lock_guard lock(mu_);
+    if (stopped_) return;
+    for (auto it = hubs_.begin(); it != hubs_.end();) {
+      if (it->first != r->scene() && it->second->Idle()) {
+        reaped.push_back(std::move(it->second));
+        it = hubs_.erase(it);
+      } else {
+        ++it;
+      }
+    }
+    auto& hub = hubs_[r->scene()];
+    if (!hub) hub = std::make_unique<ObserverHub>(r->scene_ptr());
+    hub->Add(r);
+  }
+  // Joined outside the lock: a hub thread may be finishing a reactor whose
+  // OnDone calls Remove.
+  for (auto& h : reaped) h->Stop();
+}
+
+void ObserverPublishers::Remove(WatchReactor* r) {
+  std::lock_guard lock(mu_);
+  if (auto it = hubs_.find(r->scene()); it != hubs_.end()) it->second->Remove(r);
+}
+
+void ObserverPublishers::Stop() {
+  std::map<const Scene*, std::unique_ptr<ObserverHub>> hubs;
+  {
+    std::lock_guard lock(mu_);
+    stopped_ = true;
+    hubs.swap(hubs_);
+  }
+  for (auto& [scene, hub] : hubs) hub->Stop();
+}
+
+int ObserverPublishers::running() const {
+  std::lock_guard lock(mu_);
+  return static_cast<int>(hubs_.size());
 }
 
 namespace {
@@ -87,7 +136,7 @@ WatchReactor::WatchReactor(Core* core, ScenePtr scene, const v1::WatchRequest& r
       include_meshes_(request.include_meshes()) {
   core_->Register(this);  // core_->observers was counted by SceneServiceImpl::Watch
   ++scene_->observers;
-  core_->hub->Add(this);
+  core_->publishers->Add(this);
 }
 
 Clock::time_point WatchReactor::Tick(Clock::time_point now) {
@@ -195,7 +244,7 @@ void WatchReactor::OnWriteDone(bool ok) {
   if (call) {
     Finish(finish_status_);
   } else {
-    core_->signal.Notify();  // a structural change may be waiting for this observer
+    scene_->changes().Notify();  // a structural change may be waiting for this observer
   }
 }
 
@@ -209,7 +258,7 @@ void WatchReactor::OnCancel() {
 }
 
 void WatchReactor::OnDone() {
-  core_->hub->Remove(this);
+  core_->publishers->Remove(this);
   --scene_->observers;
   --core_->observers;
   core_->Unregister(this);

@@ -1,14 +1,15 @@
-// Observer fan-out. Each Watch call is a WatchReactor; one publisher thread
-// (the ObserverHub) visits every observer when a scene changes or an
-// observer's next pose frame is due. An observer's next frame is derived from
-// the newest scene snapshot when it is ready to take one (latest value,
-// never a queue): a slow observer has at most one write in flight and skips
-// pose frames, and the hub never blocks on it, so it slows neither device
-// sessions nor other observers.
+// Observer fan-out. Each Watch call is a WatchReactor; each scene with
+// observers has its own publisher thread (an ObserverHub) that visits the
+// scene's observers when the scene changes or an observer's next pose frame
+// is due, so a busy scene never delays another scene's observers. An observer's next frame is
+// derived from the newest scene snapshot when it is ready to take one (latest value, never a
+// queue): a slow observer has at most one write in flight and skips pose frames, and the hub never
+// blocks on it, so it slows neither device sessions nor other observers.
 #pragma once
 
 #include <grpcpp/grpcpp.h>
 
+#include <map>
 #include <mutex>
 #include <thread>
 #include <vector>
@@ -25,21 +26,45 @@ void FillScene(const Scene& scene, const SceneSnapshot& snap, bool include_meshe
 
 class WatchReactor;
 
+/// The publisher of one scene: a thread that wakes on the scene's changes
+/// and on its observers' pose-frame deadlines.
 class ObserverHub {
  public:
-  explicit ObserverHub(Core* core);
+  explicit ObserverHub(ScenePtr scene);
   ~ObserverHub();
   void Add(WatchReactor* r);
   void Remove(WatchReactor* r);
   void Stop();
+  /// No observer left and the scene deleted: the hub can be reaped.
+  bool Idle();
 
  private:
   void Loop();
-  Core* core_;
+  ScenePtr scene_;
   std::mutex mu_;
   std::vector<WatchReactor*> observers_;
   std::atomic<bool> stop_{false};
   std::thread thread_;
+};
+
+/// The per-scene publishers of a server: a scene's hub starts with its first
+/// observer; hubs of deleted scenes are reaped once their observers are gone
+/// (at the next Watch call, or at shutdown).
+class ObserverPublishers {
+ public:
+  ObserverPublishers() = default;
+  ~ObserverPublishers() { Stop(); }
+  void Add(WatchReactor* r);
+  void Remove(WatchReactor* r);
+  /// Stops every hub (server shutdown); later Adds are ignored.
+  void Stop();
+  /// Publisher threads running.
+  int running() const;
+
+ private:
+  mutable std::mutex mu_;
+  std::map<const Scene*, std::unique_ptr<ObserverHub>> hubs_;
+  bool stopped_ = false;
 };
 
 class WatchReactor final : public grpc::ServerWriteReactor<v1::SceneEvent>, public StoppableCall {
@@ -52,6 +77,7 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SceneEvent>, publ
 
   void Stop(const grpc::Status& status) override;
   const Scene* scene() const override { return scene_.get(); }
+  const ScenePtr& scene_ptr() const { return scene_; }
 
  private:
   void OnWriteDone(bool ok) override;

@@ -34,6 +34,7 @@ Scene::Scene(std::string id, std::string description, ChangeSignal* signal)
 void Scene::Publish(std::shared_ptr<SceneSnapshot> next) {
   snapshot_.store(std::move(next), std::memory_order_release);
   signal_->Notify();
+  changes_.Notify();
 }
 
 grpc::Status Scene::AddBody(BodyState body, std::size_t max_bodies, BodyState* added) {
@@ -118,6 +119,7 @@ void Scene::MarkDeleted() {
     deleted_.store(true, std::memory_order_release);
   }
   signal_->Notify();
+  changes_.Notify();
 }
 
 void Scene::AddProbe(std::shared_ptr<ProbeSlot> slot) {

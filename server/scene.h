@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "hapticpd/v1/haptic.pb.h"
 #include "pd/geometry_model.h"
 #include "pd/material.h"
 #include "pd/types.h"
@@ -93,6 +94,19 @@ class Scene {
   bool deleted() const { return deleted_.load(std::memory_order_acquire); }
   void MarkDeleted();
 
+  /// Notified on every change of this scene (its observer publisher waits on it).
+  ChangeSignal& changes() { return changes_; }
+
+  /// The scene's declared effects and PD mode (scene file or CreateScene).
+  void set_config(const v1::SceneConfig& c) {
+    std::lock_guard lock(config_mu_);
+    config_ = c;
+  }
+  v1::SceneConfig config() const {
+    std::lock_guard lock(config_mu_);
+    return config_;
+  }
+
   std::atomic<int> sessions{0};
   std::atomic<int> observers{0};
 
@@ -114,12 +128,15 @@ class Scene {
   const std::string id_;
   const std::string description_;
   ChangeSignal* signal_;
+  ChangeSignal changes_;
   std::atomic<SnapshotPtr> snapshot_;
   std::mutex write_mu_;  // serialises writers; never taken by readers
   std::uint64_t next_body_number_ = 1;
   std::atomic<bool> deleted_{false};
   mutable std::mutex probes_mu_;
   std::vector<std::shared_ptr<ProbeSlot>> probes_;
+  mutable std::mutex config_mu_;
+  v1::SceneConfig config_;
 };
 
 using ScenePtr = std::shared_ptr<Scene>;

@@ -2,6 +2,7 @@
 
 #include "server/convert.h"
 #include "server/observers.h"
+#include "server/scene_file.h"
 #include "server/services.h"
 
 namespace hapticpd::server::internal {
@@ -252,6 +253,9 @@ grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerCont
   if (req->description().size() > 1024) {
     return Done(ctx, InvalidArgument("description", "is longer than 1024 bytes"));
   }
+  if (const std::string e = CheckSceneConfig(req->config(), "config"); !e.empty()) {
+    return Done(ctx, grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, e));
+  }
   if (auto s = core_->tokens.Check(*ctx, req->scene_id(), Role::kAdmin); !s.ok())
     return Done(ctx, s);
   ScenePtr scene;
@@ -260,8 +264,10 @@ grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerCont
       !s.ok()) {
     return Done(ctx, s);
   }
+  scene->set_config(req->config());
   resp->set_scene_id(scene->id());
   resp->set_description(scene->description());
+  *resp->mutable_config() = scene->config();
   Log()->info("created scene '{}'", scene->id());
   return Done(ctx, grpc::Status::OK);
 }
@@ -280,6 +286,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::ListScenes(grpc::CallbackServerConte
     sum->set_sessions(static_cast<std::uint32_t>(std::max(0, s->sessions.load())));
     sum->set_observers(static_cast<std::uint32_t>(std::max(0, s->observers.load())));
     sum->set_revision(snap->revision);
+    *sum->mutable_config() = s->config();
   }
   return Done(ctx, grpc::Status::OK);
 }

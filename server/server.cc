@@ -4,7 +4,6 @@
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
-#include <nlohmann/json.hpp>
 
 #include <filesystem>
 #include <fstream>
@@ -13,6 +12,7 @@
 #include "server/convert.h"
 #include "server/core.h"
 #include "server/observers.h"
+#include "server/scene_file.h"
 #include "server/services.h"
 
 namespace hapticpd::server {
@@ -78,32 +78,6 @@ bool IsLoopback(const std::string& listen) {
   return host == "localhost" || host.rfind("127.", 0) == 0 || host == "::1";
 }
 
-/// A pose from {"position": [x, y, z], "orientation": [w, x, y, z]}.
-v1::Pose PoseFromJson(const nlohmann::json& j, const std::string& where) {
-  v1::Pose p;
-  if (!j.is_object()) throw std::runtime_error(where + ": expected an object");
-  if (j.contains("position")) {
-    const auto& a = j["position"];
-    if (!a.is_array() || a.size() != 3)
-      throw std::runtime_error(where + ".position: expected [x, y, z]");
-    p.mutable_position()->set_x(a[0].get<double>());
-    p.mutable_position()->set_y(a[1].get<double>());
-    p.mutable_position()->set_z(a[2].get<double>());
-  }
-  if (j.contains("orientation")) {
-    const auto& a = j["orientation"];
-    if (!a.is_array() || a.size() != 4) {
-      throw std::runtime_error(where + ".orientation: expected [w, x, y, z]");
-    }
-    auto* q = p.mutable_orientation();
-    q->set_w(a[0].get<double>());
-    q->set_x(a[1].get<double>());
-    q->set_y(a[2].get<double>());
-    q->set_z(a[3].get<double>());
-  }
-  return p;
-}
-
 }  // namespace
 
 struct HapticServer::Impl {
@@ -111,7 +85,7 @@ struct HapticServer::Impl {
 
   ServerOptions options;
   internal::Core core;
-  std::unique_ptr<internal::ObserverHub> hub;
+  std::unique_ptr<internal::ObserverPublishers> publishers;
   std::unique_ptr<internal::SceneServiceImpl> scene_service;
   std::unique_ptr<internal::HapticServiceImpl> haptic_service;
   std::unique_ptr<grpc::Server> server;
@@ -128,70 +102,39 @@ struct HapticServer::Impl {
 };
 
 void HapticServer::Impl::LoadSceneFile(const std::string& path) {
-  nlohmann::json j;
+  const SceneFile f = ParseSceneFile(path);  // throws "FILE: KEY: problem"
   try {
-    j = nlohmann::json::parse(ReadFile(path, "scene file"));
-  } catch (const nlohmann::json::exception& e) {
-    throw std::runtime_error(path + ": not valid JSON (" + e.what() + ")");
-  }
-  try {
-    const std::string id = j.value("scene", std::string("default"));
+    const std::string& id = f.scene_id;
     if (auto s = ValidateId(id, "scene"); !s.ok()) throw std::runtime_error(s.error_message());
     ScenePtr scene = core.scenes.Get(id);
     if (!scene) {
-      auto s = core.scenes.Create(id, j.value("description", std::string()), core.limits.max_scenes,
-                                  &scene);
+      auto s = core.scenes.Create(id, f.description, core.limits.max_scenes, &scene);
       if (!s.ok()) throw std::runtime_error(s.error_message());
     }
-    const std::filesystem::path dir = std::filesystem::path(path).parent_path();
+    scene->set_config(f.config);
     int i = 0;
-    for (const auto& b : j.value("bodies", nlohmann::json::array())) {
+    for (const SceneFileBody& b : f.bodies) {
       const std::string where = "bodies[" + std::to_string(i++) + "]";
-      v1::BodySpec spec;
-      spec.set_body_id(b.value("id", std::string()));
-      spec.set_label(b.value("label", b.value("mesh", b.value("shape", std::string()))));
-      spec.set_movable(b.value("movable", false));
-      if (b.contains("pose")) *spec.mutable_pose() = PoseFromJson(b["pose"], where + ".pose");
-      if (b.contains("material")) {
-        const auto& m = b["material"];
-        const pd::Material d;
-        auto* pm = spec.mutable_material();
-        pm->set_stiffness(m.value("stiffness", d.stiffness));
-        pm->set_rotational_stiffness(m.value("rotational_stiffness", d.rotational_stiffness));
-        pm->set_damping(m.value("damping", d.damping));
-        pm->set_static_friction(m.value("static_friction", d.static_friction));
-        pm->set_dynamic_friction(m.value("dynamic_friction", d.dynamic_friction));
-      }
       std::optional<pd::Mesh> mesh;
       grpc::Status s;
-      if (b.contains("mesh") == b.contains("shape")) {
-        throw std::runtime_error(where + ": give exactly one of \"mesh\" (a file) or \"shape\"");
-      }
-      if (b.contains("mesh")) {
-        std::filesystem::path mp = b["mesh"].get<std::string>();
-        if (mp.is_relative()) mp = dir / mp;
+      if (!b.mesh_path.empty()) {
         try {
-          mesh = pd::LoadMesh(mp.string());
+          mesh = pd::LoadMesh(b.mesh_path);
         } catch (const pd::MeshError& e) {
           throw std::runtime_error(where + ".mesh: " + e.what());
         }
       } else {
-        s = MeshFromShape(b["shape"].get<std::string>(), where + ".shape",
-                          core.limits.max_mesh_triangles, &mesh);
+        s = MeshFromShape(b.shape, where + ".shape", core.limits.max_mesh_triangles, &mesh);
       }
       BodyState body;
-      if (s.ok()) s = internal::MakeBody(&core, spec, where, std::move(*mesh), &body);
+      if (s.ok()) s = internal::MakeBody(&core, b.spec, where, std::move(*mesh), &body);
       if (s.ok()) s = scene->AddBody(std::move(body), core.limits.max_bodies_per_scene, nullptr);
       if (!s.ok()) throw std::runtime_error(s.error_message());
     }
     Log()->info("scene '{}' loaded from {} ({} bodies)", id, path,
                 scene->snapshot()->bodies.size());
-  } catch (const nlohmann::json::exception& e) {
-    throw std::runtime_error(path + ": " + e.what());
   } catch (const std::runtime_error& e) {
-    const std::string what = e.what();
-    if (what.rfind(path, 0) == 0) throw;
-    throw std::runtime_error(path + ": " + what);
+    throw std::runtime_error(path + ": " + e.what());
   }
 }
 
@@ -247,8 +190,8 @@ void HapticServer::Start() {
     if (!s.ok()) throw std::runtime_error(s.error_message());
   }
 
-  m.hub = std::make_unique<internal::ObserverHub>(&m.core);
-  m.core.hub = m.hub.get();
+  m.publishers = std::make_unique<internal::ObserverPublishers>();
+  m.core.publishers = m.publishers.get();
   m.scene_service = std::make_unique<internal::SceneServiceImpl>(&m.core);
   m.haptic_service = std::make_unique<internal::HapticServiceImpl>(&m.core);
 
@@ -277,7 +220,7 @@ void HapticServer::Start() {
   m.server = builder.BuildAndStart();
   if (!m.server || (!o.listen.empty() && m.port == 0)) {
     m.core.builds.Stop();
-    m.hub->Stop();
+    m.publishers->Stop();
     throw std::runtime_error("cannot listen on " + o.listen +
                              " (address in use or invalid HOST:PORT?)");
   }
@@ -338,7 +281,7 @@ void HapticServer::Shutdown() {
     Log()->error("shutdown: {} calls still active after 10 s", m.core.active_calls());
   }
   m.server->Wait();
-  m.hub->Stop();
+  m.publishers->Stop();
   if (m.status_thread.joinable()) m.status_thread.join();
   {
     std::lock_guard lock(m.mu);
@@ -359,10 +302,13 @@ HapticServer::Counts HapticServer::counts() const {
   c.scenes = static_cast<int>(m.core.scenes.List().size());
   c.sessions = m.core.sessions.load();
   c.observers = m.core.observers.load();
+  c.publishers = m.publishers ? m.publishers->running() : 0;
   c.active_calls = m.core.active_calls();
   c.updates_sent = m.core.stats.updates_sent.load();
   c.observer_frames_sent = m.core.stats.observer_frames_sent.load();
   c.observer_frames_dropped = m.core.stats.observer_frames_dropped.load();
+  c.pd_calls = m.core.stats.pd_calls.load();
+  c.torque_skipped = m.core.stats.torque_skipped.load();
   return c;
 }
 

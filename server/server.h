@@ -73,9 +73,12 @@ class HapticServer {
     int sessions = 0;
     int observers = 0;
     int active_calls = 0;  ///< streaming reactors not yet done
+    int publishers = 0;    ///< per-scene observer publisher threads running
     std::uint64_t updates_sent = 0;
     std::uint64_t observer_frames_sent = 0;
     std::uint64_t observer_frames_dropped = 0;
+    std::uint64_t pd_calls = 0;        ///< PD queries run by device sessions
+    std::uint64_t torque_skipped = 0;  ///< answers without torque (scene declares none)
   };
   Counts counts() const;
 

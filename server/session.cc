@@ -12,6 +12,7 @@
 
 #include "pd/scene_pd.h"
 #include "server/convert.h"
+#include "server/scene_file.h"
 #include "server/services.h"
 
 namespace hapticpd::server::internal {
@@ -247,8 +248,17 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       }
       return s;
     }
-    if (auto s = CheckModeSupported(h.mode()); !s.ok()) return s;
-    mode_ = h.mode();
+    // The scene's declared effects and PD mode (a hello without a mode gets
+    // the scene's); without torque, answers carry no torque terms.
+    const v1::SceneConfig config = scene->config();
+    const v1::PdMode hello_mode = h.mode() == v1::PD_MODE_UNSPECIFIED ? config.pd_mode() : h.mode();
+    if (auto s = CheckModeSupported(hello_mode); !s.ok()) return s;
+    mode_ = hello_mode;
+    torque_ = SceneHasEffect(config, v1::EFFECT_TORQUE);
+    // Only effects at the contact regions need PD; weight alone does not.
+    needs_pd_ =
+        SceneHasEffect(config, v1::EFFECT_CONTACT) || SceneHasEffect(config, v1::EFFECT_FRICTION) ||
+        SceneHasEffect(config, v1::EFFECT_DAMPING) || SceneHasEffect(config, v1::EFFECT_TEXTURE);
     if (h.has_material()) {
       if (auto s = FromProto(h.material(), "hello.material", &probe_material_); !s.ok()) return s;
       has_probe_material_ = true;
@@ -315,6 +325,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     info->set_bounding_radius(pm.bounding_radius());
     w->set_probe_mass_per_density(probe_->mass().volume);
     w->set_scene_revision(scene_->snapshot()->revision);
+    *w->mutable_scene_config() = config;
     Send(&msg);
     Log()->info("session {} on scene '{}': {} probe of {} triangles, mode {}{}", session_id_,
                 scene_->id(), h.client_name().empty() ? "a" : h.client_name() + "'s",
@@ -377,7 +388,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     const SnapshotPtr snap = scene_->snapshot();
     u->set_scene_revision(snap->revision);
     const double radius = 0.1 * probe_radius_;
-    if (mode_ == v1::PD_MODE_NONE) {
+    if (mode_ == v1::PD_MODE_NONE || !needs_pd_) {
       u->set_status(v1::CONTACT_STATUS_NONE);
       ToProto(p.X_WA, u->mutable_target_pose());
       u->set_validity_radius(radius);
@@ -390,6 +401,8 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
         mode_ == v1::PD_MODE_PDG ? pd::PdMode::kGeneralized : pd::PdMode::kTranslational, *probe_,
         p.X_WA, bodies_, request_, &pd_data_, &result_);
     core_->stats.compute_us.Add(result_.time_us);
+    core_->stats.pd_calls.fetch_add(1, std::memory_order_relaxed);
+    if (!torque_) core_->stats.torque_skipped.fetch_add(1, std::memory_order_relaxed);
     const Vec3 c_W = p.X_WA * probe_->mass().p_MC;
     bool failed = false, capped = false;
     for (std::size_t i = 0; i < bodies_.size(); ++i) {
@@ -402,15 +415,20 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       }
       const auto body_index = static_cast<std::uint32_t>(u->body_ids_size());
       u->add_body_ids(body_ids_[i]);
-      const double k = bodies_[i].material.stiffness;
+      const pd::Material& mat = bodies_[i].material;
+      const double k = mat.stiffness;
       auto add_row = [&](const Vec3& p_W, const Vec3& n_W, double depth) {
         auto* row = u->add_rows();
         ToProto(p_W, row->mutable_point());
         ToProto(n_W, row->mutable_normal());
         row->set_depth(depth);
-        ToProto((p_W - c_W).cross(n_W), row->mutable_moment());
+        // Without torque the rows are pure forces (zero moment arm).
+        if (torque_) ToProto((p_W - c_W).cross(n_W), row->mutable_moment());
         row->set_stiffness(k);
         row->set_body_index(body_index);
+        row->set_static_friction(mat.static_friction);
+        row->set_dynamic_friction(mat.dynamic_friction);
+        row->set_damping(mat.damping);
       };
       // No regions (PDg, or PDt without them): one row at the centre of mass
       // along the answer's translation (for PDg, depth = sqrt(sigma) is not
@@ -421,14 +439,16 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       for (const pd::ContactRegion& reg : r.regions) add_row(reg.p_W, reg.n_W, reg.depth);
     }
     ToProto(result_.wrench.force, u->mutable_force());
-    ToProto(result_.wrench.torque, u->mutable_torque());
+    if (torque_) ToProto(result_.wrench.torque, u->mutable_torque());
     if (result_.deepest >= 0) {
       const pd::PenetrationResult& d = result_.bodies[result_.deepest];
       u->set_depth(d.depth);
       ToProto(d.translation_W, u->mutable_pd_translation());
       ToProto(d.X_WA_result, u->mutable_target_pose());
       u->set_target_stiffness(bodies_[result_.deepest].material.stiffness);
-      u->set_target_rotational_stiffness(bodies_[result_.deepest].material.rotational_stiffness);
+      if (torque_) {
+        u->set_target_rotational_stiffness(bodies_[result_.deepest].material.rotational_stiffness);
+      }
       if (d.mode == pd::PdMode::kGeneralized) {
         u->set_sigma(d.sigma);
         u->set_rotation_angle(d.rotation_angle);
@@ -533,6 +553,8 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
 
   // Worker-only state.
   int mode_ = v1::PD_MODE_UNSPECIFIED;
+  bool torque_ = true;    // the scene declares torque (or declares nothing)
+  bool needs_pd_ = true;  // the scene declares an effect at the contact regions
   pd::ModelPtr probe_;
   std::uint64_t probe_uid_ = 0;
   double probe_radius_ = 0;

@@ -1,5 +1,5 @@
 // PDg benchmark: the three benchmark pairs and 1 kHz trajectories of
-// bench_pdt (set up in bench_common.h), timing pd::ComputePdg on every frame
+// bench_pdt (client/bench/scenarios.h), timing pd::ComputePdg on every frame
 // with one PdgQueryData per benchmark carried across frames (SE(3) motion
 // coherence, as in the servo loop), and pd::ComputePdt on the same frames
 // with its own PdQueryData for comparison.
@@ -142,10 +142,8 @@ Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
   s.max = Percentile(pdg_us, 1.0);
   s.pdt_p50 = Percentile(pdt_us, 0.5);
   s.pdt_p99 = Percentile(pdt_us, 0.99);
-  if (s.penetrating > 0) {
-    s.mean_iterations = static_cast<double>(iterations) / s.penetrating;
-    s.mean_contacts = static_cast<double>(contacts) / s.penetrating;
-  }
+  s.mean_iterations = hp::bench::MeanOver(static_cast<double>(iterations), s.penetrating);
+  s.mean_contacts = hp::bench::MeanOver(static_cast<double>(contacts), s.penetrating);
   s.sigma_ratio_median = Percentile(sigma_ratios, 0.5);
   s.sigma_ratio_min = Percentile(sigma_ratios, 0.0);
   s.goal_met = s.p50 <= kGoalP50Us && s.p99 <= kGoalP99Us;

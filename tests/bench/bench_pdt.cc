@@ -4,7 +4,7 @@
 // benchmark carried across frames (motion coherence, as in the servo loop).
 // On the same poses it times FCL's mesh-mesh collide with all contacts
 // enabled, the usual substitute for PD. The three benchmarks (the seed
-// paper's) and their trajectories are set up in bench_common.h.
+// paper's) and their trajectories are set up in client/bench/scenarios.h.
 //
 // Prints per benchmark: triangles, frames, penetrating frames, PDt
 // p50/p99/p99.9/max (µs), mean iterations and contacts, FCL all-contacts
@@ -188,12 +188,9 @@ Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
   s.max = Percentile(pdt, 1.0);
   s.fcl_p50 = Percentile(fcl, 0.5);
   s.fcl_p99 = Percentile(fcl, 0.99);
-  if (s.penetrating > 0) {
-    s.mean_iterations = static_cast<double>(iterations) / s.penetrating;
-    s.mean_contacts = static_cast<double>(contacts) / s.penetrating;
-  }
-  if (s.fcl_colliding > 0)
-    s.fcl_mean_contacts = static_cast<double>(fcl_contacts) / s.fcl_colliding;
+  s.mean_iterations = hp::bench::MeanOver(static_cast<double>(iterations), s.penetrating);
+  s.mean_contacts = hp::bench::MeanOver(static_cast<double>(contacts), s.penetrating);
+  s.fcl_mean_contacts = hp::bench::MeanOver(static_cast<double>(fcl_contacts), s.fcl_colliding);
   s.median_escape_ratio = Percentile(ratios, 0.5);
   s.goal_met = s.p50 <= kGoalP50Us && s.p99 <= kGoalP99Us;
   return s;

@@ -16,7 +16,7 @@
 
 #include "device/servo_loop.h"
 #include "device/simulated_device.h"
-#include "tests/server/server_harness.h"
+#include "tests/client/session_rig.h"
 #include "tests/test_util.h"
 
 namespace hapticpd {
@@ -35,65 +35,13 @@ using device::Vec3;
 using testing::MakePose;
 using testing::WaitUntil;
 
-constexpr double kBoxTop = 0.05;       // box:0.1,0.1,0.05 at the origin
-constexpr double kProbeRadius = 0.01;  // sphere:0.01,2 (its CoM at its centre)
-
-SessionOptions Options(int port, v1::PdMode mode = v1::PD_MODE_PDT) {
-  SessionOptions o;
-  o.server = "127.0.0.1:" + std::to_string(port);
-  o.hello.set_scene_id("default");
-  o.hello.set_mode(mode);
-  o.hello.set_probe_shape("sphere:0.01,2");
-  o.connect_timeout_s = 10;
-  return o;
-}
-
-void AddBox(server::HapticServer& server) {
-  auto ch = grpc::CreateChannel("127.0.0.1:" + std::to_string(server.port()),
-                                grpc::InsecureChannelCredentials());
-  auto stub = v1::SceneService::NewStub(ch);
-  const grpc::Status s =
-      testing::AddShape(*stub, "default", "box:0.1,0.1,0.05", "box", MakePose(0, 0, 0));
-  ASSERT_TRUE(s.ok()) << s.error_message();
-}
-
-std::unique_ptr<server::HapticServer> StartServer(const std::string& listen) {
-  server::ServerOptions o;
-  o.listen = listen;
-  o.status_interval_s = 0;
-  o.shutdown_grace_s = 0.2;
-  auto s = std::make_unique<server::HapticServer>(o);
-  s->Start();
-  return s;
-}
-
-/// Sphere centre `height` above the box's top face (negative: inside).
-device::ScriptParams Script(device::HandScript script, double height, double duration,
-                            double travel = 0.02) {
-  device::ScriptParams p;
-  p.script = script;
-  p.X_DS = Pose::FromTranslation(Vec3(0, 0, kBoxTop + height));
-  p.duration_s = duration;
-  p.travel = travel;
-  return p;
-}
-
-/// Ticks `loop` at 1 kHz on the steady clock for `ticks` ticks (or until
-/// `each` returns false).
-void RunTicks(ServoLoop& loop, int ticks, const std::function<bool(const TickRecord&)>& each) {
-  const auto& clock = device::SteadyClock::Instance();
-  auto next = std::chrono::steady_clock::now();
-  for (int i = 0; i < ticks; ++i) {
-    next += std::chrono::milliseconds(1);
-    std::this_thread::sleep_until(next);
-    // If the machine stalled us, do not try to catch up in a burst.
-    if (std::chrono::steady_clock::now() - next > std::chrono::milliseconds(5)) {
-      next = std::chrono::steady_clock::now();
-    }
-    loop.Tick(clock.NowNs());
-    if (each && !each(loop.last_tick())) return;
-  }
-}
+using testing::AddBox;
+using testing::kBoxTop;
+using testing::kProbeRadius;
+using testing::Options;
+using testing::RunTicks;
+using testing::Script;
+using testing::StartServer;
 
 TEST(IrFromContactUpdate, MapsRowsTargetAndFrames) {
   v1::ContactUpdate u;
@@ -262,12 +210,13 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
   struct Seen {
     bool new_ir;
     double contact;  // |contact wrench on the proxy|
-    double force;    // |force commanded on the handle|
+    double force;    // |force commanded on the device (what it receives)|
+    double link;     // the loop's link-loss gain
   };
   std::vector<Seen> seen;
   seen.reserve(1000);
   RunTicks(loop, 1000, [&](const TickRecord& r) {
-    seen.push_back({r.new_ir, r.W_ir.norm(), r.F_cmd_W.force.norm()});
+    seen.push_back({r.new_ir, r.W_ir.norm(), r.F_cmd_D.force.norm(), r.link_gain});
     return true;
   });
   stopper.join();
@@ -277,27 +226,35 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
     if (seen[i].new_ir) last_ir = i;
   }
   ASSERT_LT(last_ir + 300, seen.size()) << "IRs kept coming after the server stopped";
-  // The contact wrench fades to exactly zero within 50 ticks of the last IR
-  // (stale after 20 ms, then a 20 ms fade) and stays there.
-  std::size_t contact_zero = seen.size();
+  // From the last answer (the moment the server was gone for the loop): the
+  // IR is stale after 20 ms and the output fades over the next 20 ms, so
+  // within 50 ticks (50 ms at 1 kHz) the commanded force is below 1 mN and
+  // stays there. (The gate makes it exactly zero; 1 mN is three orders of
+  // magnitude under the contact force before and far under what a hand can
+  // feel, so the bound does not depend on rounding.) Before this gate the
+  // coupling still pulled 0.1-0.2 N at 100 ms: the proxy dragging behind the
+  // sinking handle.
+  constexpr double kZeroForce = 1e-3;  // N
+  std::size_t force_zero = seen.size();
   for (std::size_t i = last_ir; i < seen.size(); ++i) {
-    if (seen[i].contact == 0) {
-      contact_zero = i;
+    if (seen[i].force < kZeroForce) {
+      force_zero = i;
       break;
     }
   }
-  EXPECT_LE(contact_zero - last_ir, 50u) << "ticks from the last IR to zero contact wrench";
-  double max_contact_after = 0, max_force_after = 0;
-  for (std::size_t i = contact_zero; i < seen.size(); ++i) {
+  EXPECT_LE(force_zero - last_ir, 50u) << "ticks from the last IR to zero commanded force";
+  double max_contact_after = 0, max_force_after = 0, max_step = 0;
+  for (std::size_t i = last_ir + 1; i < seen.size(); ++i) {
+    max_step = std::max(max_step, std::abs(seen[i].force - seen[i - 1].force));
+    if (i < force_zero) continue;
     max_contact_after = std::max(max_contact_after, seen[i].contact);
     max_force_after = std::max(max_force_after, seen[i].force);
   }
   EXPECT_EQ(max_contact_after, 0) << "contact came back while disconnected";
-  // The handle's force is then only the coupling's transient while the hand
-  // sinks into the now free space: small, and gone by the end.
-  EXPECT_LT(seen[last_ir + 50].force, 0.2 * f_before + 0.02);
-  EXPECT_LT(max_force_after, 0.3 * f_before + 0.02);
-  EXPECT_LT(seen.back().force, 0.05 * f_before + 0.01);
+  EXPECT_LT(max_force_after, kZeroForce) << "force came back while disconnected";
+  EXPECT_EQ(seen.back().link, 0.0);
+  // A fade, not a cut: no tick drops more than a tenth of the force before.
+  EXPECT_LT(max_step, 0.1 * f_before) << "force jumped while fading";
   EXPECT_FALSE(session.connected());
   EXPECT_GE(session.stats().disconnects, 1u);
 
@@ -307,8 +264,20 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
   const std::uint64_t updates_before = session.stats().updates;
   bool reconnected = false;
   bool contact_again = false;
+  bool fresh_ir = false;   // an IR from the new server was taken
+  double stale_force = 0;  // max |F| after the return, before fresh_ir
+  double min_gain = 1e9;   // startup gain after the return
+  double max_gain_step = 0, max_dforce = 0, prev_gain = 1, prev_force = seen.back().force;
   RunTicks(loop, 10000, [&](const TickRecord& r) {
     reconnected = session.stats().connects >= 2;
+    const double f = r.F_cmd_D.force.norm();
+    if (reconnected && r.new_ir) fresh_ir = true;
+    if (!fresh_ir) stale_force = std::max(stale_force, f);
+    min_gain = std::min(min_gain, r.startup_gain);
+    max_gain_step = std::max(max_gain_step, r.startup_gain - prev_gain);
+    max_dforce = std::max(max_dforce, std::abs(f - prev_force));
+    prev_gain = r.startup_gain;
+    prev_force = f;
     // Rendering the new server's IR: contact rows pushing the proxy out.
     contact_again = reconnected && r.ir.have_ir && !r.ir.stale && r.ir.active_rows > 0 &&
                     r.W_ir(2) > 0.1 && r.F_cmd_W.force.z() > 0.5 * f_before;
@@ -317,6 +286,13 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
   EXPECT_TRUE(reconnected) << session.stats().last_error;
   EXPECT_TRUE(contact_again);
   EXPECT_GT(session.stats().updates, updates_before);
+  // Nothing from before the loss is felt after the return, and the force
+  // comes back through the start-up ramp (re-armed on reconnect: from zero,
+  // at most one ramp step per tick), never as a step.
+  EXPECT_LT(stale_force, kZeroForce);
+  EXPECT_EQ(min_gain, 0.0);
+  EXPECT_LE(max_gain_step, config.period_s / config.startup.ramp_time_s + 1e-12);
+  EXPECT_LT(max_dforce, 0.1 * f_before);
   EXPECT_TRUE(WaitUntil([&] { return session.connected(); }, std::chrono::seconds(5)));
   session.Stop();
   again->Shutdown();

@@ -2,6 +2,8 @@
 
 #include <fcl/fcl.h>
 
+#include "pd/convex_hull.h"
+
 namespace hapticpd::testing {
 
 struct FclModel::Impl {
@@ -66,6 +68,40 @@ double FclDistance(const FclModel& a, const Pose& X_WA, const FclModel& b, const
   fcl::DistanceResultd res;
   fcl::distance(&oa, &ob, req, res);
   return std::max(0.0, res.min_distance);
+}
+
+struct FclConvex::Impl {
+  std::shared_ptr<fcl::Convexd> geom;
+  std::unique_ptr<fcl::CollisionObjectd> object;
+};
+
+FclConvex::FclConvex(const pd::Mesh& mesh) : impl_(std::make_unique<Impl>()) {
+  const pd::Mesh hull = pd::ConvexHull(mesh.vertices());
+  auto v =
+      std::make_shared<std::vector<fcl::Vector3d>>(hull.vertices().begin(), hull.vertices().end());
+  auto f = std::make_shared<std::vector<int>>();
+  f->reserve(4 * hull.num_triangles());
+  for (const auto& t : hull.triangles()) f->insert(f->end(), {3, t[0], t[1], t[2]});
+  impl_->geom = std::make_shared<fcl::Convexd>(v, static_cast<int>(hull.num_triangles()), f);
+  impl_->object = std::make_unique<fcl::CollisionObjectd>(impl_->geom);
+}
+
+FclConvex::~FclConvex() = default;
+
+FclPenetration FclConvexPenetration(const FclConvex& a, const Pose& X_WA, const FclConvex& b,
+                                    const Pose& X_WB) {
+  a.impl().object->setTransform(ToFcl(X_WA));
+  a.impl().object->computeAABB();
+  b.impl().object->setTransform(ToFcl(X_WB));
+  b.impl().object->computeAABB();
+  fcl::CollisionRequestd req(1, true);
+  fcl::CollisionResultd res;
+  fcl::collide(a.impl().object.get(), b.impl().object.get(), req, res);
+  FclPenetration out;
+  out.colliding = res.isCollision();
+  if (out.colliding && res.numContacts() > 0)
+    out.depth = std::abs(res.getContact(0).penetration_depth);
+  return out;
 }
 
 }  // namespace hapticpd::testing

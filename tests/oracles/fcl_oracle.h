@@ -36,6 +36,30 @@ bool FclCollide(const FclModel& a, const Pose& X_WA, const FclModel& b, const Po
 int FclContacts(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB,
                 int max_contacts = 100000);
 
+/// FCL's convex shape (fcl::Convex) of a mesh's convex hull, for its
+/// GJK/EPA penetration query (the peer `hapticpd bench peers` compares with).
+class FclConvex {
+ public:
+  explicit FclConvex(const pd::Mesh& mesh);  ///< convex hull of the vertices
+  ~FclConvex();
+  FclConvex(const FclConvex&) = delete;
+  FclConvex& operator=(const FclConvex&) = delete;
+  struct Impl;
+  Impl& impl() const { return *impl_; }
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+struct FclPenetration {
+  bool colliding = false;
+  double depth = 0;  ///< FCL's contact penetration depth (unreliable in 0.7, PEERS.md)
+};
+
+/// Collide of the two hulls with one contact requested (libccd GJK/EPA).
+FclPenetration FclConvexPenetration(const FclConvex& a, const Pose& X_WA, const FclConvex& b,
+                                    const Pose& X_WB);
+
 /// Surface distance (0 when they intersect).
 double FclDistance(const FclModel& a, const Pose& X_WA, const FclModel& b, const Pose& X_WB);
 

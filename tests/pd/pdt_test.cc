@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <random>
 
+#include "client/bench/ground_truth.h"
 #include "pd/scene_pd.h"
 #include "pd/shapes.h"
 #include "tests/alloc_counter.h"
@@ -181,45 +182,9 @@ TEST(PdtNonConvex, SharedBunnyAnswersAreVerifiedContacts) {
   EXPECT_GT(penetrating, 3);
 }
 
-// Upper bound on PDt by directional sampling: for each direction, the
-// smallest free translation found by bisection with FCL collide; refined by
-// sampling around the best direction.
-double DirectionalDepth(const FclModel& fa, const Pose& X, const FclModel& fb, const Vec3& u,
-                        double far) {
-  if (FclCollide(fa, Pose{X.R, X.t + u * far}, fb, Pose::Identity())) return 1e300;
-  double lo = 0, hi = far;
-  for (int i = 0; i < 40; ++i) {
-    const double mid = 0.5 * (lo + hi);
-    (FclCollide(fa, Pose{X.R, X.t + u * mid}, fb, Pose::Identity()) ? lo : hi) = mid;
-  }
-  return hi;
-}
-
-double SampledUpperBound(const FclModel& fa, const Pose& X, const FclModel& fb, double far,
-                         std::mt19937_64& rng, int directions) {
-  std::normal_distribution<double> n(0, 1);
-  double best = 1e300;
-  Vec3 best_u = Vec3::UnitZ();
-  for (int k = 0; k < directions; ++k) {
-    const Vec3 u = Vec3(n(rng), n(rng), n(rng)).normalized();
-    const double d = DirectionalDepth(fa, X, fb, u, far);
-    if (d < best) {
-      best = d;
-      best_u = u;
-    }
-  }
-  for (double spread : {0.2, 0.05, 0.01}) {
-    for (int k = 0; k < directions / 4; ++k) {
-      const Vec3 u = (best_u + spread * Vec3(n(rng), n(rng), n(rng))).normalized();
-      const double d = DirectionalDepth(fa, X, fb, u, far);
-      if (d < best) {
-        best = d;
-        best_u = u;
-      }
-    }
-  }
-  return best;
-}
+// Upper bound on PDt by directional sampling (client/bench/ground_truth.h,
+// shared with `hapticpd bench accuracy`).
+using bench::SampledUpperBound;
 
 TEST(PdtNonConvex, MedianWithinOnePercentOfSamplingBoundAlongACoherentTrajectory) {
   const ModelPtr A = MakeModel(shapes::Box(Vec3(0.008, 0.008, 0.03)));

@@ -1,0 +1,92 @@
+// Shared pieces of the device-session tests (tests/client): a hapticpd
+// server in-process on 127.0.0.1 (TCP), Session options for it, hand
+// scripts relative to a 0.1 x 0.1 x 0.05 (half extents) box at the origin,
+// and a real-time 1 kHz ticker for a ServoLoop driven by the test thread.
+#pragma once
+
+#include <chrono>
+#include <functional>
+#include <memory>
+#include <string>
+#include <thread>
+
+#include "client/session.h"
+#include "device/servo_loop.h"
+#include "device/simulated_device.h"
+#include "tests/server/server_harness.h"
+
+namespace hapticpd::testing {
+
+inline constexpr double kBoxTop = 0.05;       // box:0.1,0.1,0.05 at the origin
+inline constexpr double kProbeRadius = 0.01;  // sphere:0.01,2 (its CoM at its centre)
+
+inline client::SessionOptions Options(int port, v1::PdMode mode = v1::PD_MODE_PDT) {
+  client::SessionOptions o;
+  o.server = "127.0.0.1:" + std::to_string(port);
+  o.hello.set_scene_id("default");
+  o.hello.set_mode(mode);
+  o.hello.set_probe_shape("sphere:0.01,2");
+  o.connect_timeout_s = 10;
+  return o;
+}
+
+/// Adds `shape` as body `id` at `pose` to the server's default scene, with
+/// the material's stiffness (N/m) when `stiffness` > 0 (else the default).
+inline void AddBody(server::HapticServer& server, const std::string& shape, const std::string& id,
+                    const v1::Pose& pose, double stiffness = 0) {
+  auto ch = grpc::CreateChannel("127.0.0.1:" + std::to_string(server.port()),
+                                grpc::InsecureChannelCredentials());
+  auto stub = v1::SceneService::NewStub(ch);
+  v1::AddBodyRequest req = ShapeHeader("default", shape, id, pose);
+  if (stiffness > 0) {
+    req.mutable_header()->mutable_spec()->mutable_material()->set_stiffness(stiffness);
+  }
+  v1::Body body;
+  const grpc::Status s = AddBodyRaw(*stub, {req}, &body);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+}
+
+inline void AddBox(server::HapticServer& server) {
+  AddBody(server, "box:0.1,0.1,0.05", "box", MakePose(0, 0, 0));
+}
+
+inline std::unique_ptr<server::HapticServer> StartServer(const std::string& listen) {
+  server::ServerOptions o;
+  o.listen = listen;
+  o.status_interval_s = 0;
+  o.shutdown_grace_s = 0.2;
+  auto s = std::make_unique<server::HapticServer>(o);
+  s->Start();
+  return s;
+}
+
+/// Sphere centre `height` above the box's top face (negative: inside).
+inline device::ScriptParams Script(device::HandScript script, double height, double duration,
+                                   double travel = 0.02) {
+  device::ScriptParams p;
+  p.script = script;
+  p.X_DS = device::Pose::FromTranslation(device::Vec3(0, 0, kBoxTop + height));
+  p.duration_s = duration;
+  p.travel = travel;
+  return p;
+}
+
+/// Ticks `loop` at 1 kHz on the steady clock for `ticks` ticks (or until
+/// `each` returns false).
+inline void RunTicks(device::ServoLoop& loop, int ticks,
+                     const std::function<bool(const device::TickRecord&)>& each) {
+  const auto& clock = device::SteadyClock::Instance();
+  auto next = std::chrono::steady_clock::now();
+  for (int i = 0; i < ticks; ++i) {
+    next += std::chrono::milliseconds(1);
+    std::this_thread::sleep_until(next);
+    // If the machine stalled us, do not try to catch up in a burst.
+    if (std::chrono::steady_clock::now() - next > std::chrono::milliseconds(5)) {
+      next = std::chrono::steady_clock::now();
+    }
+    loop.Tick(clock.NowNs());
+    if (each && !each(loop.last_tick())) return;
+  }
+}
+
+}  // namespace hapticpd::testing

@@ -1,0 +1,296 @@
+// The JSON scene-file parser (server/scene_file.h) and what the server does
+// with a scene's declared effects: stores them (CreateScene, GetScene,
+// ListScenes, scene files), sends them in the Welcome, skips torque terms
+// for a scene without torque, and never runs PD in mode none.
+#include "server/scene_file.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "server/server.h"
+#include "tests/server/server_harness.h"
+
+namespace hapticpd::testing {
+namespace {
+
+namespace fs = std::filesystem;
+
+class SceneFileParse : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("hapticpd_scenefile_" + std::to_string(::getpid()));
+    fs::create_directories(dir_);
+    std::ofstream(dir_ / "tet.obj")
+        << "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  std::string Write(const std::string& name, const std::string& text) {
+    std::ofstream(dir_ / name) << text;
+    return (dir_ / name).string();
+  }
+
+  /// The error message of parsing `text`, or "" when it parsed.
+  std::string Error(const std::string& text) {
+    const std::string path = Write("bad.json", text);
+    try {
+      server::ParseSceneFile(path);
+    } catch (const server::SceneFileError& e) {
+      const std::string what = e.what();
+      EXPECT_EQ(what.rfind(path + ": ", 0), 0u) << "names the file: " << what;
+      return what.substr(path.size() + 2);
+    }
+    return "";
+  }
+
+  fs::path dir_;
+};
+
+TEST_F(SceneFileParse, FullFile) {
+  const std::string path = Write("full.json", R"({
+    "scene": "desk", "description": "a pen on a desk", "mode": "pdg",
+    "effects": ["contact", "friction", "damping", "weight", "texture", "torque"],
+    "gravity": [0, 0, -9.8], "texture": {"amplitude": 0.1, "frequency": 80},
+    "probe": {"shape": "stick", "mass": 0.02, "inertia": 1e-6},
+    "bodies": [
+      {"id": "tet", "mesh": "tet.obj", "movable": true,
+       "pose": {"position": [0, 0, 1], "orientation": [0, 0, 0, 1]},
+       "material": {"stiffness": 2500, "rotational_stiffness": 0.1, "damping": 3,
+                    "static_friction": 0.6, "dynamic_friction": 0.4}},
+      {"id": "floor", "shape": "plate:1,1,0.01"}]})");
+  const server::SceneFile f = server::ParseSceneFile(path);
+  EXPECT_EQ(f.scene_id, "desk");
+  EXPECT_EQ(f.description, "a pen on a desk");
+  const v1::SceneConfig& c = f.config;
+  EXPECT_TRUE(c.declared());
+  EXPECT_EQ(c.pd_mode(), v1::PD_MODE_PDG);
+  ASSERT_EQ(c.effects_size(), 6);
+  EXPECT_EQ(c.effects(0), v1::EFFECT_CONTACT);
+  EXPECT_EQ(c.effects(5), v1::EFFECT_TORQUE);
+  EXPECT_DOUBLE_EQ(c.gravity().z(), -9.8);
+  EXPECT_DOUBLE_EQ(c.texture_amplitude(), 0.1);
+  EXPECT_DOUBLE_EQ(c.texture_frequency(), 80);
+  EXPECT_EQ(c.probe_shape(), "stick");
+  EXPECT_DOUBLE_EQ(c.probe_mass(), 0.02);
+  EXPECT_DOUBLE_EQ(c.probe_inertia(), 1e-6);
+  ASSERT_EQ(f.bodies.size(), 2u);
+  EXPECT_EQ(f.bodies[0].mesh_path, (dir_ / "tet.obj").string());
+  EXPECT_TRUE(f.bodies[0].spec.movable());
+  EXPECT_DOUBLE_EQ(f.bodies[0].spec.material().dynamic_friction(), 0.4);
+  EXPECT_DOUBLE_EQ(f.bodies[0].spec.material().damping(), 3);
+  EXPECT_DOUBLE_EQ(f.bodies[0].spec.pose().orientation().z(), 1);
+  EXPECT_EQ(f.bodies[1].shape, "plate:1,1,0.01");
+  EXPECT_FALSE(f.bodies[1].spec.has_material());
+}
+
+TEST_F(SceneFileParse, MinimalFileIsALegacyScene) {
+  const server::SceneFile f =
+      server::ParseSceneFile(Write("min.json", R"({"bodies": [{"shape": "box"}]})"));
+  EXPECT_EQ(f.scene_id, "default");
+  EXPECT_FALSE(f.config.declared());
+  EXPECT_EQ(f.config.pd_mode(), v1::PD_MODE_UNSPECIFIED);
+  EXPECT_TRUE(server::SceneHasEffect(f.config, v1::EFFECT_CONTACT));
+  EXPECT_TRUE(server::SceneHasEffect(f.config, v1::EFFECT_TORQUE));
+  EXPECT_FALSE(server::SceneHasEffect(f.config, v1::EFFECT_FRICTION));
+  EXPECT_FALSE(f.probe.given);
+}
+
+TEST_F(SceneFileParse, CommittedScenesParse) {
+  for (const auto& e : fs::directory_iterator(fs::path(HAPTICPD_TESTDATA_DIR) / "scenes")) {
+    if (e.path().extension() != ".json") continue;
+    SCOPED_TRACE(e.path().string());
+    EXPECT_NO_THROW(server::ParseSceneFile(e.path().string()));
+  }
+}
+
+TEST_F(SceneFileParse, BadFilesNameKeyAndFile) {
+  struct Case {
+    const char* text;
+    const char* expect;  // the message after "FILE: "
+  };
+  const Case cases[] = {
+      // unknown keys, at every level
+      {R"({"scenes": "x"})", "scenes: unknown key"},
+      {R"({"bodies": [{"shape": "box", "colour": 1}]})", "bodies[0].colour: unknown key"},
+      {R"({"bodies": [{"shape": "box", "material": {"stifness": 1}}]})",
+       "bodies[0].material.stifness: unknown key"},
+      {R"({"probe": {"shape": "stick", "weight": 1}})", "probe.weight: unknown key"},
+      {R"({"bodies": [{"shape": "box", "pose": {"positon": [0, 0, 0]}}]})",
+       "bodies[0].pose.positon: unknown key"},
+      // wrong types
+      {R"({"scene": 3})", "scene: expected a string"},
+      {R"({"bodies": {"shape": "box"}})", "bodies: expected a list"},
+      {R"({"bodies": [{"shape": "box", "movable": "yes"}]})", "bodies[0].movable: expected true"},
+      {R"({"bodies": [{"shape": "box", "material": {"stiffness": "hard"}}]})",
+       "bodies[0].material.stiffness: expected a number"},
+      {R"({"bodies": [{"shape": "box", "pose": {"position": [0, 0]}}]})",
+       "bodies[0].pose.position: expected [x, y, z]"},
+      {R"({"effects": "contact"})", "effects: expected a list"},
+      // invalid values
+      {R"({"bodies": [{"shape": "box", "material": {"stiffness": -5}}]})",
+       "bodies[0].material.stiffness: must be >= 0"},
+      {R"({"bodies": [{"shape": "box", "material": {"static_friction": 0.2,
+          "dynamic_friction": 0.5}}]})",
+       "bodies[0].material.dynamic_friction: must not exceed static_friction"},
+      {R"({"probe": {"shape": "stick", "mass": 0}})", "probe.mass: must be > 0"},
+      {R"({"texture": {"frequency": 2000}})", "texture.frequency: must be in (0, 500]"},
+      {R"({"mode": "pdx"})", "mode: unknown PD mode 'pdx'"},
+      {R"({"effects": ["contact", "frication"]})", "effects[1]: unknown effect 'frication'"},
+      {R"({"effects": ["contact", "contact"]})", "effects[1]: effect 'contact' is listed twice"},
+      // missing files and shapes
+      {R"({"bodies": [{"id": "a", "mesh": "nope.obj"}]})", "bodies[0].mesh: mesh file '"},
+      {R"({"probe": {"mesh": "nope.obj"}})", "probe.mesh: mesh file '"},
+      {R"({"bodies": [{"id": "a"}]})", "bodies[0]: give exactly one of"},
+      {R"({"bodies": [{"mesh": "tet.obj", "shape": "box"}]})", "bodies[0]: give exactly one of"},
+      // not JSON at all
+      {R"({"bodies": [)", "not valid JSON"},
+  };
+  for (const Case& c : cases) {
+    const std::string e = Error(c.text);
+    EXPECT_EQ(e.rfind(c.expect, 0), 0u) << c.text << "\n  gave: " << e;
+  }
+}
+
+// --- The server with declared effects ----------------------------------------
+
+server::ServerOptions InProcess(std::vector<std::string> files = {}) {
+  server::ServerOptions o;
+  o.listen = "";
+  o.status_interval_s = 0;
+  o.scene_files = std::move(files);
+  return o;
+}
+
+/// Poses a sphere probe into a box at the origin until an answer with
+/// contact arrives; returns it.
+std::optional<v1::ContactUpdate> PressIntoBox(Session& s) {
+  for (std::uint64_t seq = 1; seq < 200; ++seq) {
+    s.Send(seq, MakePose(0.02, 0.01, 0.045));  // touches the box's top face off-centre
+    auto u = s.Next();
+    if (!u) return std::nullopt;
+    if (u->rows_size() > 0) return u;
+  }
+  return std::nullopt;
+}
+
+TEST_F(SceneFileParse, ServerStoresAndSendsTheConfig) {
+  const std::string path = Write("fx.json", R"({"scene": "fx", "mode": "pdt",
+    "effects": ["contact", "friction"],
+    "bodies": [{"id": "box", "shape": "box:0.1,0.1,0.05",
+                "material": {"static_friction": 0.7, "dynamic_friction": 0.5, "damping": 2}}]})");
+  ServerHarness h(Transport::kInProcess, InProcess({path}));
+  auto scenes = h.Scenes();
+  const v1::Scene scene = GetScene(*scenes, "fx");
+  EXPECT_TRUE(scene.config().declared());
+  EXPECT_EQ(scene.config().effects_size(), 2);
+  EXPECT_EQ(scene.config().pd_mode(), v1::PD_MODE_PDT);
+
+  auto haptics = h.Haptics();
+  Session s(*haptics);
+  // A hello without a mode gets the scene's.
+  ASSERT_TRUE(s.Open(Session::DefaultHello("fx", v1::PD_MODE_UNSPECIFIED)).ok());
+  EXPECT_EQ(s.welcome().mode(), v1::PD_MODE_PDT);
+  EXPECT_EQ(s.welcome().scene_config().effects(1), v1::EFFECT_FRICTION);
+  const auto u = PressIntoBox(s);
+  ASSERT_TRUE(u);
+  // No torque declared: the rows are pure forces and the answer has no torque.
+  for (const v1::ContactRow& r : u->rows()) {
+    EXPECT_FALSE(r.has_moment());
+    EXPECT_DOUBLE_EQ(r.static_friction(), 0.7);  // the material, for client-side friction
+    EXPECT_DOUBLE_EQ(r.dynamic_friction(), 0.5);
+    EXPECT_DOUBLE_EQ(r.damping(), 2);
+  }
+  EXPECT_FALSE(u->has_torque());
+  EXPECT_GT(h.server().counts().pd_calls, 0u);
+  EXPECT_EQ(h.server().counts().torque_skipped, h.server().counts().pd_calls);
+}
+
+TEST_F(SceneFileParse, LegacySceneKeepsTorque) {
+  ServerHarness h(Transport::kInProcess, InProcess());
+  auto scenes = h.Scenes();
+  ASSERT_TRUE(AddShape(*scenes, "default", "box:0.1,0.1,0.05", "box", MakePose(0, 0, 0)).ok());
+  auto haptics = h.Haptics();
+  Session s(*haptics);
+  ASSERT_TRUE(s.Open(Session::DefaultHello("default", v1::PD_MODE_PDT)).ok());
+  EXPECT_FALSE(s.welcome().scene_config().declared());
+  const auto u = PressIntoBox(s);
+  ASSERT_TRUE(u);
+  bool any_moment = false;
+  for (const v1::ContactRow& r : u->rows()) any_moment = any_moment || r.has_moment();
+  EXPECT_TRUE(any_moment);
+  EXPECT_EQ(h.server().counts().torque_skipped, 0u);
+}
+
+TEST_F(SceneFileParse, ModeNoneNeverCallsPd) {
+  const std::string path = Write("none.json", R"({"scene": "none", "mode": "none",
+    "effects": ["contact", "torque"], "bodies": [{"id": "box", "shape": "box:0.1,0.1,0.05"}]})");
+  ServerHarness h(Transport::kInProcess, InProcess({path}));
+  auto haptics = h.Haptics();
+  Session s(*haptics);
+  ASSERT_TRUE(s.Open(Session::DefaultHello("none", v1::PD_MODE_UNSPECIFIED)).ok());
+  EXPECT_EQ(s.welcome().mode(), v1::PD_MODE_NONE);
+  for (std::uint64_t seq = 1; seq <= 20; ++seq) {
+    s.Send(seq, MakePose(0, 0, 0.04));  // deep inside the box
+    const auto u = s.Next();
+    ASSERT_TRUE(u);
+    EXPECT_EQ(u->status(), v1::CONTACT_STATUS_NONE);
+    EXPECT_EQ(u->rows_size(), 0);
+  }
+  EXPECT_EQ(h.server().counts().pd_calls, 0u);
+  // The counter does count: a PDt session on the same scene runs PD.
+  Session pdt(*haptics);
+  ASSERT_TRUE(pdt.Open(Session::DefaultHello("none", v1::PD_MODE_PDT)).ok());
+  pdt.Send(1, MakePose(0, 0, 0.04));
+  ASSERT_TRUE(pdt.Next());
+  EXPECT_GT(h.server().counts().pd_calls, 0u);
+}
+
+TEST_F(SceneFileParse, WeightOnlySceneNeedsNoPd) {
+  const std::string path = Write("w.json", R"({"scene": "w", "mode": "pdt",
+    "effects": ["weight"], "bodies": [{"id": "box", "shape": "box:0.1,0.1,0.05"}]})");
+  ServerHarness h(Transport::kInProcess, InProcess({path}));
+  auto haptics = h.Haptics();
+  Session s(*haptics);
+  ASSERT_TRUE(s.Open(Session::DefaultHello("w", v1::PD_MODE_PDT)).ok());
+  for (std::uint64_t seq = 1; seq <= 5; ++seq) {
+    s.Send(seq, MakePose(0, 0, 0.04));
+    ASSERT_TRUE(s.Next());
+  }
+  EXPECT_EQ(h.server().counts().pd_calls, 0u);
+}
+
+TEST_F(SceneFileParse, CreateSceneStoresAndValidatesTheConfig) {
+  ServerHarness h(Transport::kInProcess, InProcess());
+  auto scenes = h.Scenes();
+  v1::CreateSceneRequest req;
+  req.set_scene_id("pen");
+  req.mutable_config()->set_declared(true);
+  req.mutable_config()->add_effects(v1::EFFECT_CONTACT);
+  req.mutable_config()->add_effects(v1::EFFECT_WEIGHT);
+  req.mutable_config()->set_pd_mode(v1::PD_MODE_PDT);
+  v1::SceneSummary sum;
+  auto ctx = Ctx();
+  ASSERT_TRUE(scenes->CreateScene(ctx.get(), req, &sum).ok());
+  EXPECT_EQ(sum.config().effects_size(), 2);
+  EXPECT_EQ(GetScene(*scenes, "pen").config().effects(1), v1::EFFECT_WEIGHT);
+  v1::ListScenesResponse list;
+  auto ctx2 = Ctx();
+  ASSERT_TRUE(scenes->ListScenes(ctx2.get(), {}, &list).ok());
+  bool found = false;
+  for (const auto& s : list.scenes())
+    found = found || (s.scene_id() == "pen" && s.config().declared());
+  EXPECT_TRUE(found);
+
+  req.set_scene_id("bad");
+  req.mutable_config()->add_effects(v1::EFFECT_WEIGHT);  // twice
+  auto ctx3 = Ctx();
+  const grpc::Status st = scenes->CreateScene(ctx3.get(), req, &sum);
+  EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(st.error_message().rfind("config.effects[2]", 0), 0u) << st.error_message();
+}
+
+}  // namespace
+}  // namespace hapticpd::testing
