@@ -1,7 +1,7 @@
 // Watch over both transports: snapshot first, then changes and poses; an
 // injected body shows up in the next PD answer and in observers' streams; a
 // slow observer drops frames without slowing a device session or another
-// observer; the observer limit.
+// observer; one publisher per scene; the observer limit.
 #include <atomic>
 #include <map>
 #include <set>
@@ -210,6 +210,42 @@ TEST_P(ObserverTest, SlowObserverDropsFramesWithoutSlowingOthers) {
   s.CloseWrites();
   EXPECT_FALSE(s.Next());
   EXPECT_TRUE(s.Finish().ok());
+}
+
+TEST_P(ObserverTest, EachSceneHasItsOwnPublisherReapedAfterTheSceneIsDeleted) {
+  ServerHarness h(GetParam());
+  auto scenes = h.Scenes();
+  {
+    v1::CreateSceneRequest req;
+    req.set_scene_id("other");
+    v1::SceneSummary resp;
+    auto ctx = Ctx();
+    ASSERT_TRUE(scenes->CreateScene(ctx.get(), req, &resp).ok());
+  }
+  EXPECT_EQ(h.server().counts().publishers, 0);  // started by the first observer
+  Observer a(*scenes, "default", 100);
+  Observer b(*scenes, "other", 100);
+  ASSERT_TRUE(WaitUntil([&] { return a.pose_frames() > 0 && b.pose_frames() > 0; }));
+  EXPECT_EQ(h.server().counts().publishers, 2);
+  // A change of one scene reaches that scene's observer.
+  ASSERT_TRUE(AddShape(*scenes, "other", "box", "x", MakePose(0, 0, 0)).ok());
+  ASSERT_TRUE(WaitUntil([&] { return b.saw_added("x"); }));
+  EXPECT_FALSE(a.saw_added("x"));
+  {
+    v1::DeleteSceneRequest del;
+    del.set_scene_id("other");
+    v1::DeleteSceneResponse dr;
+    auto ctx = Ctx();
+    ASSERT_TRUE(scenes->DeleteScene(ctx.get(), del, &dr).ok());
+  }
+  ASSERT_TRUE(WaitUntil([&] { return h.server().counts().observers == 1; }));
+  b.Stop(false);
+  EXPECT_EQ(b.status().error_code(), grpc::StatusCode::NOT_FOUND);
+  // The deleted scene's publisher is reaped when the next observer arrives.
+  Observer c(*scenes, "default", 100);
+  ASSERT_TRUE(WaitUntil([&] { return c.pose_frames() > 0; }));
+  EXPECT_EQ(h.server().counts().publishers, 1);
+  EXPECT_GT(a.pose_frames(), 0);
 }
 
 TEST_P(ObserverTest, ObserverLimitAndBadRequests) {
