@@ -164,12 +164,13 @@ TEST(DeviceE2e, StalledUpdateStreamFadesAndRecovers) {
   struct Seen {
     bool new_ir;
     double force, contact, link;
+    std::int64_t time_ns;
   };
   std::vector<Seen> seen;
   seen.reserve(1500);
   bool back = false;
   RunTicks(*rig.loop, 1500, [&](const TickRecord& r) {
-    seen.push_back({r.new_ir, r.F_cmd_D.force.norm(), r.W_ir.norm(), r.link_gain});
+    seen.push_back({r.new_ir, r.F_cmd_D.force.norm(), r.W_ir.norm(), r.link_gain, r.time_ns});
     // Contact rendered again at most of its former strength.
     back = seen.size() > 200 && r.W_ir(2) > 0.1 && r.F_cmd_D.force.z() > 0.75 * f_before;
     return !back;
@@ -193,11 +194,17 @@ TEST(DeviceE2e, StalledUpdateStreamFadesAndRecovers) {
   EXPECT_EQ(seen[gap_end - 1].link, 0.0);
   // And then it recovers, ramped rather than stepped.
   EXPECT_TRUE(back) << "contact force did not come back after the stall";
-  double max_df = 0;
+  // No step: at most 15% of the force per on-time tick (the 20 ms fade is 5%
+  // per tick; the rest is the proxy moving meanwhile). The fade-out runs in
+  // real time, so a tick the machine delayed (a loaded CI runner) may fade
+  // in proportion to its lateness; such ticks are allowed that much more.
+  double worst = 0;  // largest per-tick change over its allowance
   for (std::size_t i = 1; i < seen.size(); ++i) {
-    max_df = std::max(max_df, std::abs(seen[i].force - seen[i - 1].force));
+    const double dt = 1e-9 * static_cast<double>(seen[i].time_ns - seen[i - 1].time_ns);
+    const double allowed = std::max(0.15, 1.5 * dt / 0.020) * f_before;  // the 20 ms default
+    worst = std::max(worst, std::abs(seen[i].force - seen[i - 1].force) / allowed);
   }
-  EXPECT_LT(max_df, 0.1 * f_before);
+  EXPECT_LT(worst, 1.0) << "a force step beyond 15% of the force per on-time tick";
   const client::SessionStats st = rig.session->stats();
   EXPECT_GT(st.withheld_updates, 50u);
   EXPECT_EQ(st.connects, 1u) << "a stall is not a disconnect";
