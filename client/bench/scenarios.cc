@@ -276,6 +276,13 @@ const char* PhaseName(int phase) {
 // ---------------------------------------------------------------------------
 // Setup
 
+namespace {
+// " in 'DIR'", or " (no models folder)" when none was found.
+std::string Where(const std::string& models_dir) {
+  return models_dir.empty() ? " (no models folder)" : " in '" + models_dir + "'";
+}
+}  // namespace
+
 std::vector<Benchmark> BuildBenchmarks(const std::string& models_dir, bool tiny) {
   std::vector<Benchmark> out;
   const std::filesystem::path dir(models_dir);
@@ -308,8 +315,8 @@ std::vector<Benchmark> BuildBenchmarks(const std::string& models_dir, bool tiny)
     } else {
       stand_in(&b, pd::shapes::TorusKnot(2, 3, 0.06, 0.015, 1200, 30),
                "torus knot (bunny stand-in)",
-               "NOTE: stanford-bunny.obj not found in '" + models_dir +
-                   "'; using a procedural torus knot instead");
+               "NOTE: stanford-bunny.obj not found" + Where(models_dir) +
+                   "; using a procedural torus knot instead");
     }
     b.tip_dir_A = Vec3::UnitZ();
     b.slide = 0.015;
@@ -356,8 +363,8 @@ std::vector<Benchmark> BuildBenchmarks(const std::string& models_dir, bool tiny)
       b.up = Vec3::UnitY();
     } else {
       stand_in(&b, pd::shapes::TorusKnot(2, 3, 0.25, 0.06, 420, 24), "torus knot (statue stand-in)",
-               "NOTE: beast.obj not found in '" + models_dir +
-                   "'; using a 20K-triangle procedural torus knot instead");
+               "NOTE: beast.obj not found" + Where(models_dir) +
+                   "; using a 20K-triangle procedural torus knot instead");
     }
     // The head's face, turned so that the handle rises from the surface at 17 degrees.
     b.tip_dir_A = Vec3(1, 0, 0.3);
