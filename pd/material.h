@@ -1,6 +1,8 @@
 // Contact material of a scene body and the penalty wrench from a PD result.
 #pragma once
 
+#include <cstdint>
+
 #include "pd/penetration.h"
 #include "pd/types.h"
 
@@ -20,5 +22,13 @@ struct Material {
 /// its query pose. Falls back to f = k d at the centre of mass when the result
 /// has no regions. Zero wrench for a separated or failed result.
 Wrench PenaltyWrench(const PenetrationResult& result, const Material& material, const Vec3& p_WAcm);
+
+/// Which terms of a contact wrench to compute: a scene without torque (a
+/// 3-DoF device) asks for the force only, and the torque stays zero without
+/// being computed.
+enum class WrenchTerms : std::uint8_t { kForceAndTorque, kForceOnly };
+
+/// The force of PenaltyWrench alone (same value, no torque terms).
+Vec3 PenaltyForce(const PenetrationResult& result, const Material& material);
 
 }  // namespace hapticpd::pd

@@ -194,6 +194,12 @@ double ObjectNormSquared(const MassProperties& mp, const Vec6& z) {
   return z.cwiseProduct(z).dot(MetricDiagonal(mp));
 }
 
+Vec6 PdgMetricDiagonal(const MassProperties& mp, const PenetrationRequest& request) {
+  Vec6 m = MetricDiagonal(mp);
+  if (request.principal_inertia_over_mass) m.head<3>() = 4 * *request.principal_inertia_over_mass;
+  return m;
+}
+
 Vec6 RelativeConfiguration(const MassProperties& mp, const Pose& X_WA0, const Pose& X_WA1) {
   const Mat3 R_WAb0 = X_WA0.R * mp.X_MB.R;
   const Mat3 R_WAb1 = X_WA1.R * mp.X_MB.R;
@@ -245,17 +251,21 @@ void PdgQueryData::Remember(const CoherenceEntry& e) {
   coherence_size_ = std::min(coherence_size_ + 1, kCoherenceSlots);
 }
 
-Wrench PdgWrench(const PenetrationResult& result, const Material& material) {
+Wrench PdgWrench(const PenetrationResult& result, const Material& material, WrenchTerms terms) {
   Wrench w;
   if (result.status == PdStatus::kSeparated || result.status == PdStatus::kFailed) return w;
   w.force = material.stiffness * result.translation_W;
-  w.torque = material.rotational_stiffness * result.rotation_angle * result.rotation_axis_W;
+  if (terms == WrenchTerms::kForceAndTorque) {
+    w.torque = material.rotational_stiffness * result.rotation_angle * result.rotation_axis_W;
+  }
   return w;
 }
 
-Wrench PdWrench(const PenetrationResult& result, const Material& material, const Vec3& p_WAcm) {
-  return result.mode == PdMode::kGeneralized ? PdgWrench(result, material)
-                                             : PenaltyWrench(result, material, p_WAcm);
+Wrench PdWrench(const PenetrationResult& result, const Material& material, const Vec3& p_WAcm,
+                WrenchTerms terms) {
+  if (result.mode == PdMode::kGeneralized) return PdgWrench(result, material, terms);
+  if (terms == WrenchTerms::kForceOnly) return Wrench{PenaltyForce(result, material), Vec3::Zero()};
+  return PenaltyWrench(result, material, p_WAcm);
 }
 
 namespace {
@@ -541,7 +551,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   PdgContext c{A,       X_WA,
                B,       X_WB,
                request, *data,
-               eps,     MetricDiagonal(A.mass()),
+               eps,     PdgMetricDiagonal(A.mass(), request),
                R_WAb0,  X_WA * A.mass().p_MC};
   auto finish = [&](PdStatus status) {
     result->status = status;
@@ -711,6 +721,14 @@ void ComputePdg(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B
     ResetResult(X_WA, result);
     result->status = PdStatus::kFailed;
     result->failure = "non-finite pose (probe or scene body)";
+    result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+    return;
+  }
+  if (const auto& I = request.principal_inertia_over_mass;
+      I && !(I->allFinite() && (I->array() > 0).all())) {
+    ResetResult(X_WA, result);
+    result->status = PdStatus::kFailed;
+    result->failure = "request.principal_inertia_over_mass: every entry must be finite and > 0";
     result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
     return;
   }

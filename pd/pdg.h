@@ -4,6 +4,11 @@
 //   PDg(A, B) = min sigma(q_o, q) over rigid poses q of A that do not overlap B,
 //   sigma(q0, q1) = (1/V) * integral over A of |x(q1) - x(q0)|^2 dV
 //                 = z^T M z,  z = (v, t),  M = diag(4 Ixx/V, 4 Iyy/V, 4 Izz/V, 1, 1, 1).
+// (I the unit-density principal moments, V the volume: I/V is the probe's
+// mean squared distance from its centre of mass per axis pair. A probe whose
+// real mass distribution differs from a uniform solid, e.g. a scene file's
+// `inertia` override, sets PenetrationRequest::principal_inertia_over_mass
+// and M uses 4 I/m instead: PdgMetricDiagonal.)
 //
 // Configuration coordinates z (relative to the query pose q_o), in A's body
 // frame Ab (centre of mass C, principal axes; MassProperties::X_MB) at q_o:
@@ -107,6 +112,13 @@ class MetricQp {
 /// sigma of the relative configuration z = (v, t) for `mp` (ALGORITHMS.md).
 double ObjectNormSquared(const MassProperties& mp, const Vec6& z);
 
+/// The diagonal of the metric M that PDg uses for a probe with mass
+/// properties `mp` under `request`: ObjectNormMetric(mp) (rotational weights
+/// 4 I/V of the uniform solid), or with request.principal_inertia_over_mass
+/// = (Ixx, Iyy, Izz)/m (m^2) the rotational weights 4 Ixx/m, 4 Iyy/m,
+/// 4 Izz/m; the translational weights are 1 either way. sigma = z^T M z.
+Vec6 PdgMetricDiagonal(const MassProperties& mp, const PenetrationRequest& request);
+
 /// z of the pose X_WA1 of A's mesh frame relative to X_WA0 (both in the same
 /// frame W), with the quaternion taken in the hemisphere w >= 0.
 Vec6 RelativeConfiguration(const MassProperties& mp, const Pose& X_WA0, const Pose& X_WA1);
@@ -161,7 +173,9 @@ class PdgQueryData {
 /// kGeneralized; conventions above and in pd/penetration.h). Uses request
 /// fields like ComputePdt (contact_epsilon, max_iterations,
 /// improvement_tolerance, use_coherence, cold_start_directions for the PDt
-/// start); compute_regions and region_radius are ignored.
+/// start) and principal_inertia_over_mass for its metric (PdgMetricDiagonal;
+/// result.sigma is measured in it); compute_regions and region_radius are
+/// ignored. A non-finite or non-positive inertia override fails (kFailed).
 void ComputePdg(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
                 const PenetrationRequest& request, PdgQueryData* data, PenetrationResult* result);
 
@@ -170,11 +184,14 @@ void ComputePdg(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B
 /// tau = xi theta omega (xi = material.rotational_stiffness, theta and omega
 /// the answer's rotation angle and axis): both push the probe towards the
 /// answer pose. W frame, torque about the centre of mass at the query pose.
-/// Zero for a separated or failed result.
-Wrench PdgWrench(const PenetrationResult& result, const Material& material);
+/// Zero for a separated or failed result. kForceOnly leaves the torque zero.
+Wrench PdgWrench(const PenetrationResult& result, const Material& material,
+                 WrenchTerms terms = WrenchTerms::kForceAndTorque);
 
 /// The wrench of any PD result: PdgWrench for mode kGeneralized, otherwise
-/// PenaltyWrench (regions) about `p_WAcm`.
-Wrench PdWrench(const PenetrationResult& result, const Material& material, const Vec3& p_WAcm);
+/// PenaltyWrench (regions) about `p_WAcm`, or with kForceOnly PenaltyForce
+/// (the same force, torque zero and not computed).
+Wrench PdWrench(const PenetrationResult& result, const Material& material, const Vec3& p_WAcm,
+                WrenchTerms terms = WrenchTerms::kForceAndTorque);
 
 }  // namespace hapticpd::pd

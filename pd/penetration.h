@@ -17,6 +17,7 @@
 
 #include <array>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -74,6 +75,14 @@ struct PenetrationRequest {
   /// start). Guarantees sqrt(sigma) <= |PDt| on every query at the price of a
   /// PDt; without coherence (use_coherence false) it always holds.
   bool pdg_always_pdt_start = false;
+  /// PDg only: the probe's principal moments of inertia about its centre of
+  /// mass divided by its mass (m^2), along the body frame's axes
+  /// (MassProperties::X_MB), e.g. (I, I, I) / m for an isotropic override of
+  /// a probe of mass m (kg) and inertia I (kg m^2). The object norm's
+  /// rotational weights become 4 I/m instead of the mesh's unit-density
+  /// 4 I/V (PdgMetricDiagonal, pd/pdg.h). Unset (default): the mesh's. Every
+  /// entry must be finite and > 0 (otherwise PDg fails, naming this field).
+  std::optional<Vec3> principal_inertia_over_mass;
 };
 
 /// One contact feature pair used at the answer.

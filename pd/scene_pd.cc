@@ -11,7 +11,7 @@ void ComputeScenePdt(const GeometryModel& A, const Pose& X_WA, std::span<const S
 
 void ComputeScenePd(PdMode mode, const GeometryModel& A, const Pose& X_WA,
                     std::span<const SceneBody> bodies, const PenetrationRequest& request,
-                    ScenePdData* data, ScenePdResult* result) {
+                    ScenePdData* data, ScenePdResult* result, WrenchTerms terms) {
   const auto t0 = std::chrono::steady_clock::now();
   const bool pdg = mode == PdMode::kGeneralized;
   if (!pdg && data->per_body.size() != bodies.size()) data->Resize(bodies.size());
@@ -56,7 +56,7 @@ void ComputeScenePd(PdMode mode, const GeometryModel& A, const Pose& X_WA,
     }
     if (r.status == PdStatus::kSeparated || r.status == PdStatus::kFailed) continue;
     result->colliding = true;
-    const Wrench w = PdWrench(r, body.material, p_WAcm);
+    const Wrench w = PdWrench(r, body.material, p_WAcm, terms);
     result->wrench.force += w.force;
     result->wrench.torque += w.torque;
     if (r.depth > deepest) {

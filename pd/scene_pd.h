@@ -44,9 +44,12 @@ void ComputeScenePdt(const GeometryModel& A, const Pose& X_WA, std::span<const S
 
 /// PD of probe A against every body by either method: PDt as above, or PDg
 /// (ComputePdg per body; the wrench is the sum of PdgWrench over the bodies,
-/// `deepest` the body with the largest sqrt(sigma)).
+/// `deepest` the body with the largest sqrt(sigma)). `terms` kForceOnly (a
+/// scene without torque) sums the forces only: result->wrench.torque is zero
+/// and no torque term is computed (PdWrench).
 void ComputeScenePd(PdMode mode, const GeometryModel& A, const Pose& X_WA,
                     std::span<const SceneBody> bodies, const PenetrationRequest& request,
-                    ScenePdData* data, ScenePdResult* result);
+                    ScenePdData* data, ScenePdResult* result,
+                    WrenchTerms terms = WrenchTerms::kForceAndTorque);
 
 }  // namespace hapticpd::pd

@@ -188,6 +188,13 @@ class Parser {
     };
     p.mass = positive("mass");
     p.inertia = positive("inertia");
+    // The override is the probe's inertia per mass (PDg's object norm).
+    if (p.inertia > 0 && p.mass == 0) {
+      Fail(key + ".inertia", "needs \"mass\" too (the override is inertia / mass)");
+    }
+    if (p.inertia > 0 && !std::isfinite(p.inertia / p.mass)) {
+      Fail(key + ".inertia", "inertia / mass is not finite");
+    }
     v1::SceneConfig& c = f->config;
     c.set_probe_shape(p.shape);
     c.set_probe_mass(p.mass);
@@ -320,6 +327,12 @@ std::string CheckSceneConfig(const v1::SceneConfig& c, const std::string& field)
     if (!std::isfinite(v) || v < 0) return field + "." + name + ": must be finite and >= 0";
   }
   if (c.texture_frequency() > 500) return field + ".texture_frequency: must be <= 500 Hz";
+  if (c.probe_inertia() > 0 && !(c.probe_mass() > 0)) {
+    return field + ".probe_inertia: needs probe_mass > 0 (the override is inertia / mass)";
+  }
+  if (c.probe_inertia() > 0 && !std::isfinite(c.probe_inertia() / c.probe_mass())) {
+    return field + ".probe_inertia: probe_inertia / probe_mass is not finite";
+  }
   return {};
 }
 

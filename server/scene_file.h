@@ -44,7 +44,10 @@ struct SceneFileProbe {
   std::string shape;      ///< procedural shape spec, or
   std::string mesh_path;  ///< resolved mesh file
   double mass = 0;        ///< kg; 0: not given
-  double inertia = 0;     ///< kg m^2 (isotropic); 0: not given
+  /// kg m^2 (isotropic, about the centre of mass); 0: not given. Needs
+  /// `mass`: PDg's object norm then weighs rotations by 4 inertia / mass
+  /// instead of the mesh's uniform-solid inertia (PdgMetricDiagonal).
+  double inertia = 0;
 };
 
 struct SceneFile {

@@ -255,6 +255,13 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     if (auto s = CheckModeSupported(hello_mode); !s.ok()) return s;
     mode_ = hello_mode;
     torque_ = SceneHasEffect(config, v1::EFFECT_TORQUE);
+    // The scene's probe inertia override (mass and inertia both given; the
+    // parser and CheckSceneConfig reject inertia without mass) replaces the
+    // mesh's uniform-solid rotational weights of the PDg object norm.
+    if (config.probe_mass() > 0 && config.probe_inertia() > 0) {
+      request_.principal_inertia_over_mass =
+          Vec3::Constant(config.probe_inertia() / config.probe_mass());
+    }
     // Only effects at the contact regions need PD; weight alone does not.
     needs_pd_ =
         SceneHasEffect(config, v1::EFFECT_CONTACT) || SceneHasEffect(config, v1::EFFECT_FRICTION) ||
@@ -399,7 +406,8 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     SyncBodies(snap);
     pd::ComputeScenePd(
         mode_ == v1::PD_MODE_PDG ? pd::PdMode::kGeneralized : pd::PdMode::kTranslational, *probe_,
-        p.X_WA, bodies_, request_, &pd_data_, &result_);
+        p.X_WA, bodies_, request_, &pd_data_, &result_,
+        torque_ ? pd::WrenchTerms::kForceAndTorque : pd::WrenchTerms::kForceOnly);
     core_->stats.compute_us.Add(result_.time_us);
     core_->stats.pd_calls.fetch_add(1, std::memory_order_relaxed);
     if (!torque_) core_->stats.torque_skipped.fetch_add(1, std::memory_order_relaxed);

@@ -3,7 +3,9 @@
 // above PDt; rotation found where it is the cheap way out (stick in a slot,
 // L-shape hooked on a post) with the expected torque; hard cases (half turns,
 // sphere-like probes with ill-defined principal axes, scale, containment);
-// metamorphic relations; coherent trajectories; no allocation after warm-up.
+// metamorphic relations; coherent trajectories; no allocation after warm-up;
+// the probe inertia override (heavier rotation: less of it); force-only
+// wrenches for scenes without torque.
 #include "pd/pdg.h"
 
 #include <gtest/gtest.h>
@@ -15,6 +17,7 @@
 #include <random>
 #include <vector>
 
+#include "pd/scene_pd.h"
 #include "pd/shapes.h"
 #include "tests/alloc_counter.h"
 #include "tests/oracles/fcl_oracle.h"
@@ -165,10 +168,11 @@ TEST(PdgQp, ReportsInfeasibility) {
 // Verification helpers
 
 // Checks every PDg answer the same way: consistent fields, a real contact
-// along its own motion (FCL), and never above the PDt answer at the same pose.
+// along its own motion (FCL), and never above the PDt answer at the same pose
+// (sigma measured in the metric of `request`).
 void ExpectVerifiedPdg(const GeometryModel& A, const Pose& X_WA, const Pose& X_WB,
                        const FclModel& fa, const FclModel& fb, const PenetrationResult& r,
-                       double pdt_depth) {
+                       double pdt_depth, const PenetrationRequest& request = ColdRequest()) {
   ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
   ASSERT_NE(r.status, PdStatus::kSeparated);
   EXPECT_EQ(r.mode, PdMode::kGeneralized);
@@ -177,7 +181,8 @@ void ExpectVerifiedPdg(const GeometryModel& A, const Pose& X_WA, const Pose& X_W
   EXPECT_LE(r.depth, pdt_depth * (1 + 1e-9)) << "PDg above PDt";
   // The reported sigma, translation and rotation describe the result pose.
   const MassProperties& mp = A.mass();
-  EXPECT_NEAR(ObjectNormSquared(mp, RelativeConfiguration(mp, X_WA, r.X_WA_result)), r.sigma,
+  const Vec6 z = RelativeConfiguration(mp, X_WA, r.X_WA_result);
+  EXPECT_NEAR(z.cwiseProduct(z).dot(PdgMetricDiagonal(mp, request)), r.sigma,
               1e-9 * r.sigma + 1e-18);
   EXPECT_LT((r.X_WA_result * mp.p_MC - X_WA * mp.p_MC - r.translation_W).norm(),
             1e-9 * (1 + r.depth));
@@ -309,21 +314,30 @@ RotationCase RunRotationCase(const GeometryModel& A, const Pose& X_WA, const Geo
   return out;
 }
 
+// A slot 2 cm wide between two walls (x < 0 and x > 0.02, z < 0); a 20 cm
+// stick stands in it tilted by 0.1 rad about y, its lower end `depth` (2 mm)
+// into the left wall.
+struct StickInSlot {
+  ModelPtr slot = MakeModel(Union(BoxAt(Vec3(-0.1, -0.1, -0.1), Vec3(0, 0.1, 0)),
+                                  BoxAt(Vec3(0.02, -0.1, -0.1), Vec3(0.12, 0.1, 0)), "slot"));
+  ModelPtr stick = MakeModel(shapes::Box(Vec3(0.005, 0.005, 0.1)));
+  double depth = 0.002;
+  Pose X_WA;
+  StickInSlot() {
+    const Mat3 R = Eigen::AngleAxisd(0.1, Vec3::UnitY()).toRotationMatrix();
+    // Lower-left corner edge of the stick: (-0.005, *, -0.1) in its frame.
+    const double corner_x = (R * Vec3(-0.005, 0, -0.1)).x();
+    X_WA = Pose{R, Vec3(-depth - corner_x, 0, 0.02)};
+  }
+};
+
 TEST(PdgRotation, LongStickPokedIntoASlotPivotsOut) {
-  // A slot 2 cm wide between two walls (x < 0 and x > 0.02, z < 0); a 20 cm
-  // stick stands in it tilted by 0.1 rad about y, its lower end 2 mm into the
-  // left wall. Translating out costs the full 2 mm; pivoting about the centre
-  // of mass (plus a little translation) moves the tip at 10 cm lever for
-  // about half of that in the object norm.
-  const ModelPtr slot = MakeModel(Union(BoxAt(Vec3(-0.1, -0.1, -0.1), Vec3(0, 0.1, 0)),
-                                        BoxAt(Vec3(0.02, -0.1, -0.1), Vec3(0.12, 0.1, 0)), "slot"));
-  const ModelPtr stick = MakeModel(shapes::Box(Vec3(0.005, 0.005, 0.1)));
-  const double tilt = 0.1, depth = 0.002;
-  const Mat3 R = Eigen::AngleAxisd(tilt, Vec3::UnitY()).toRotationMatrix();
-  // Lower-left corner edge of the stick: (-0.005, *, -0.1) in its frame.
-  const double corner_x = (R * Vec3(-0.005, 0, -0.1)).x();
-  const Pose X_WA{R, Vec3(-depth - corner_x, 0, 0.02)};
-  const RotationCase rc = RunRotationCase(*stick, X_WA, *slot);
+  // Translating out costs the full 2 mm; pivoting about the centre of mass
+  // (plus a little translation) moves the tip at 10 cm lever for about half
+  // of that in the object norm.
+  const StickInSlot c;
+  const RotationCase rc = RunRotationCase(*c.stick, c.X_WA, *c.slot);
+  const double depth = c.depth;
   EXPECT_NEAR(rc.pdt.depth, depth, 1e-9);
   EXPECT_LT(rc.pdg.depth, 0.8 * rc.pdt.depth) << "rotation should be much cheaper";
   // The answer pivots the lower end towards +x: a rotation about -y.
@@ -351,6 +365,140 @@ TEST(PdgRotation, LShapeHookedOnAPostRotatesOff) {
   EXPECT_GT(rc.pdg.rotation_axis_W.z(), 0.9);
   EXPECT_GT(rc.wrench.torque.z(), 0);
   EXPECT_GT(rc.wrench.force.x(), 0);
+}
+
+// --------------------------------------------------------------------------
+// The probe's inertia override (a scene file's probe mass and inertia)
+
+TEST(PdgInertiaOverride, TheMeshsOwnInertiaPerMassChangesNothing) {
+  // Units: the mesh's unit-density moments over its volume are its inertia
+  // per mass, so that override must reproduce the default answer.
+  const StickInSlot c;
+  const MassProperties& mp = c.stick->mass();
+  PenetrationRequest same = ColdRequest();
+  same.principal_inertia_over_mass = Vec3(mp.principal_moments / mp.norm_measure);
+  EXPECT_LT((PdgMetricDiagonal(mp, same) - ObjectNormMetric(mp).diagonal()).norm(),
+            1e-12 * ObjectNormMetric(mp).diagonal().norm());
+  PdgQueryData d0, d1;
+  PenetrationResult r0, r1;
+  ComputePdg(*c.stick, c.X_WA, *c.slot, Pose::Identity(), ColdRequest(), &d0, &r0);
+  ComputePdg(*c.stick, c.X_WA, *c.slot, Pose::Identity(), same, &d1, &r1);
+  ASSERT_EQ(r0.status, PdStatus::kPenetratingSolved) << r0.failure;
+  ASSERT_EQ(r1.status, PdStatus::kPenetratingSolved) << r1.failure;
+  EXPECT_NEAR(r1.sigma, r0.sigma, 1e-9 * r0.sigma);
+  EXPECT_NEAR(r1.rotation_angle, r0.rotation_angle, 1e-6 * r0.rotation_angle);
+}
+
+TEST(PdgInertiaOverride, AHeavierRotationPivotsLessAndTranslatesMore) {
+  // The stick in the slot pivots out by default (rotation is cheap). With
+  // rotational weights 4 I/m ten times the mesh's largest, rotation costs
+  // more: the answer turns less and translates more (towards PDt's straight
+  // push), still a verified contact no deeper than PDt in its own metric.
+  const StickInSlot c;
+  const MassProperties& mp = c.stick->mass();
+  const double heavy = 10 * mp.principal_moments.maxCoeff() / mp.norm_measure;  // m^2
+  PenetrationRequest req = ColdRequest();
+  req.principal_inertia_over_mass = Vec3::Constant(heavy);
+  EXPECT_DOUBLE_EQ(PdgMetricDiagonal(mp, req)[0], 4 * heavy);
+  EXPECT_DOUBLE_EQ(PdgMetricDiagonal(mp, req)[2], 4 * heavy);
+  EXPECT_DOUBLE_EQ(PdgMetricDiagonal(mp, req)[3], 1);
+
+  PdgQueryData d0, d1;
+  PdQueryData dt;
+  PenetrationResult r0, r1, pdt;
+  ComputePdg(*c.stick, c.X_WA, *c.slot, Pose::Identity(), ColdRequest(), &d0, &r0);
+  ComputePdg(*c.stick, c.X_WA, *c.slot, Pose::Identity(), req, &d1, &r1);
+  ComputePdt(*c.stick, c.X_WA, *c.slot, Pose::Identity(), ColdRequest(), &dt, &pdt);
+  const FclModel fa(c.stick->mesh()), fb(c.slot->mesh());
+  ExpectVerifiedPdg(*c.stick, c.X_WA, Pose::Identity(), fa, fb, r0, pdt.depth);
+  ExpectVerifiedPdg(*c.stick, c.X_WA, Pose::Identity(), fa, fb, r1, pdt.depth, req);
+  std::cout << "[ PDg inertia ] default: rotation " << r0.rotation_angle << " rad, translation "
+            << r0.translation_W.norm() << " m; heavy: rotation " << r1.rotation_angle
+            << " rad, translation " << r1.translation_W.norm() << " m; PDt " << pdt.depth << " m\n";
+  EXPECT_GT(r0.rotation_angle, 1e-3);
+  EXPECT_LT(r1.rotation_angle, 0.5 * r0.rotation_angle);
+  EXPECT_GT(r1.translation_W.norm(), r0.translation_W.norm());
+  EXPECT_LE(r1.translation_W.norm(), pdt.depth * (1 + 1e-9));
+  // The heavier metric never makes the same motion cheaper.
+  EXPECT_GE(r1.sigma, r0.sigma * (1 - 1e-9));
+}
+
+TEST(PdgInertiaOverride, InvalidOverrideFailsNamingTheField) {
+  const StickInSlot c;
+  for (const Vec3& bad : {Vec3(1e-3, 0, 1e-3), Vec3(-1, -1, -1),
+                          Vec3(1, std::numeric_limits<double>::quiet_NaN(), 1)}) {
+    PenetrationRequest req = ColdRequest();
+    req.principal_inertia_over_mass = bad;
+    PdgQueryData d;
+    PenetrationResult r;
+    ComputePdg(*c.stick, c.X_WA, *c.slot, Pose::Identity(), req, &d, &r);
+    EXPECT_EQ(r.status, PdStatus::kFailed);
+    EXPECT_NE(r.failure.find("principal_inertia_over_mass"), std::string::npos) << r.failure;
+  }
+}
+
+// --------------------------------------------------------------------------
+// Force only (a scene without torque)
+
+void ExpectForceOnlyMatches(const PenetrationResult& r, const Material& m, const Vec3& p_WAcm) {
+  const Wrench full = PdWrench(r, m, p_WAcm);
+  const Wrench force = PdWrench(r, m, p_WAcm, WrenchTerms::kForceOnly);
+  EXPECT_GT(full.torque.norm(), 0) << "the case must have a torque to skip";
+  EXPECT_GT(full.force.norm(), 0);
+  EXPECT_EQ(force.force, full.force);
+  EXPECT_EQ(force.torque, Vec3::Zero());
+}
+
+TEST(PdForceOnly, SameForceAndZeroTorqueForPdtAndPdg) {
+  const StickInSlot c;
+  Material m;
+  m.stiffness = 800;
+  m.rotational_stiffness = 0.3;
+  const Vec3 p_WAcm = c.X_WA * c.stick->mass().p_MC;
+  {
+    SCOPED_TRACE("PDt with regions");
+    PdQueryData d;
+    PenetrationResult r;
+    ComputePdt(*c.stick, c.X_WA, *c.slot, Pose::Identity(), ColdRequest(), &d, &r);
+    ASSERT_FALSE(r.regions.empty());
+    ExpectForceOnlyMatches(r, m, p_WAcm);
+    EXPECT_EQ(PenaltyForce(r, m), PenaltyWrench(r, m, p_WAcm).force);
+    PenetrationResult no_regions = r;  // the fallback f = k d
+    no_regions.regions.clear();
+    EXPECT_EQ(PenaltyForce(no_regions, m), PenaltyWrench(no_regions, m, p_WAcm).force);
+  }
+  {
+    SCOPED_TRACE("PDg");
+    PdgQueryData d;
+    PenetrationResult r;
+    ComputePdg(*c.stick, c.X_WA, *c.slot, Pose::Identity(), ColdRequest(), &d, &r);
+    ExpectForceOnlyMatches(r, m, p_WAcm);
+  }
+  PenetrationResult separated;
+  separated.status = PdStatus::kSeparated;
+  separated.translation_W = Vec3(1, 2, 3);
+  EXPECT_EQ(PenaltyForce(separated, m), Vec3::Zero());
+}
+
+TEST(PdForceOnly, ScenePdSumsTheSameForceWithoutTorque) {
+  const StickInSlot c;
+  // The slot, and a box far away that the broad phase skips.
+  const std::vector<SceneBody> bodies = {{c.slot, Pose::Identity(), Material{}},
+                                         {MakeModel(shapes::Box(Vec3(0.01, 0.01, 0.01))),
+                                          Pose::FromTranslation(Vec3(0, 0, 0.5)), Material{}}};
+  for (PdMode mode : {PdMode::kTranslational, PdMode::kGeneralized}) {
+    SCOPED_TRACE(ToString(mode));
+    ScenePdData d0, d1;
+    ScenePdResult full, force;
+    ComputeScenePd(mode, *c.stick, c.X_WA, bodies, ColdRequest(), &d0, &full);
+    ComputeScenePd(mode, *c.stick, c.X_WA, bodies, ColdRequest(), &d1, &force,
+                   WrenchTerms::kForceOnly);
+    ASSERT_TRUE(full.colliding);
+    EXPECT_GT(full.wrench.torque.norm(), 0);
+    EXPECT_EQ(force.wrench.force, full.wrench.force);
+    EXPECT_EQ(force.wrench.torque, Vec3::Zero());
+    EXPECT_EQ(force.deepest, full.deepest);
+  }
 }
 
 // --------------------------------------------------------------------------

@@ -1,14 +1,17 @@
 // The JSON scene-file parser (server/scene_file.h) and what the server does
 // with a scene's declared effects: stores them (CreateScene, GetScene,
 // ListScenes, scene files), sends them in the Welcome, skips torque terms
-// for a scene without torque, and never runs PD in mode none.
+// for a scene without torque, never runs PD in mode none, and weighs PDg's
+// rotations by the scene's probe inertia override.
 #include "server/scene_file.h"
 
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 
 #include "server/server.h"
 #include "tests/server/server_harness.h"
@@ -136,6 +139,7 @@ TEST_F(SceneFileParse, BadFilesNameKeyAndFile) {
           "dynamic_friction": 0.5}}]})",
        "bodies[0].material.dynamic_friction: must not exceed static_friction"},
       {R"({"probe": {"shape": "stick", "mass": 0}})", "probe.mass: must be > 0"},
+      {R"({"probe": {"shape": "stick", "inertia": 1e-6}})", "probe.inertia: needs \"mass\""},
       {R"({"texture": {"frequency": 2000}})", "texture.frequency: must be in (0, 500]"},
       {R"({"mode": "pdx"})", "mode: unknown PD mode 'pdx'"},
       {R"({"effects": ["contact", "frication"]})", "effects[1]: unknown effect 'frication'"},
@@ -290,6 +294,66 @@ TEST_F(SceneFileParse, CreateSceneStoresAndValidatesTheConfig) {
   const grpc::Status st = scenes->CreateScene(ctx3.get(), req, &sum);
   EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_EQ(st.error_message().rfind("config.effects[2]", 0), 0u) << st.error_message();
+
+  // An inertia override needs the mass it is relative to.
+  v1::CreateSceneRequest no_mass;
+  no_mass.set_scene_id("no_mass");
+  no_mass.mutable_config()->set_probe_inertia(1e-6);
+  auto ctx4 = Ctx();
+  const grpc::Status st2 = scenes->CreateScene(ctx4.get(), no_mass, &sum);
+  EXPECT_EQ(st2.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(st2.error_message().rfind("config.probe_inertia: needs probe_mass", 0), 0u)
+      << st2.error_message();
+}
+
+/// The PDg answer of a session on `scene` for a 20 cm stick (1 cm square)
+/// standing in a 2 cm slot, tilted 0.1 rad about y, its lower end 2 mm into
+/// the left wall: pivoting out is cheaper than translating (as in
+/// tests/pd/pdg_test.cc).
+std::optional<v1::ContactUpdate> StickInSlot(v1::HapticService::Stub& haptics,
+                                             const std::string& scene) {
+  Session s(haptics);
+  if (!s.Open(Session::DefaultHello(scene, v1::PD_MODE_PDG, "box:0.005,0.005,0.1")).ok()) {
+    return std::nullopt;
+  }
+  const double tilt = 0.1;
+  const double corner_x = -0.005 * std::cos(tilt) - 0.1 * std::sin(tilt);
+  s.Send(1, MakePose(-0.002 - corner_x, 0, 0.02, std::cos(tilt / 2), 0, std::sin(tilt / 2), 0));
+  return s.Next();
+}
+
+TEST_F(SceneFileParse, ProbeInertiaOverrideWeighsPdgRotations) {
+  // The same scene twice, the second with a probe whose inertia per mass is
+  // ten times the uniform stick's largest (I/m = (0.1^2 + 0.005^2) / 3 m^2):
+  // PDg turns it much less.
+  const char* bodies = R"("bodies": [
+      {"id": "left", "shape": "box:0.05,0.1,0.05", "pose": {"position": [-0.05, 0, -0.05]}},
+      {"id": "right", "shape": "box:0.05,0.1,0.05", "pose": {"position": [0.07, 0, -0.05]}}]})";
+  const double i_over_m = 10 * (0.1 * 0.1 + 0.005 * 0.005) / 3;
+  const std::string plain = Write("plain.json", std::string(R"({"scene": "plain", "mode": "pdg",
+    "effects": ["contact", "torque"], "probe": {"shape": "box:0.005,0.005,0.1", "mass": 0.02},)") +
+                                                    bodies);
+  const std::string heavy =
+      Write("heavy.json",
+            std::string(R"({"scene": "heavy", "mode": "pdg", "effects": ["contact", "torque"],
+    "probe": {"shape": "box:0.005,0.005,0.1", "mass": 0.02, "inertia": )") +
+                std::to_string(0.02 * i_over_m) + "}," + bodies);
+  ServerHarness h(Transport::kInProcess, InProcess({plain, heavy}));
+  auto haptics = h.Haptics();
+  const auto a = StickInSlot(*haptics, "plain");
+  const auto b = StickInSlot(*haptics, "heavy");
+  ASSERT_TRUE(a && b);
+  ASSERT_EQ(a->status(), v1::CONTACT_STATUS_PENETRATING);
+  ASSERT_EQ(b->status(), v1::CONTACT_STATUS_PENETRATING);
+  std::cout << "[ inertia override ] rotation " << a->rotation_angle() << " rad -> "
+            << b->rotation_angle() << " rad, sigma " << a->sigma() << " -> " << b->sigma()
+            << " m^2\n";
+  EXPECT_GT(a->rotation_angle(), 1e-3);
+  EXPECT_LT(b->rotation_angle(), 0.5 * a->rotation_angle());
+  EXPECT_GT(b->sigma(), a->sigma());
+  // Both still push the stick's lower end out of the left wall (+x).
+  EXPECT_GT(a->force().x(), 0);
+  EXPECT_GT(b->force().x(), 0);
 }
 
 }  // namespace
