@@ -11,6 +11,7 @@ PACKAGES=(
   libeigen3-dev libopenmesh-dev libspdlog-dev libfmt-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev
   libfcl-dev libccd-dev libbullet-dev
+  clang libclang-rt-14-dev  # the `fuzz` preset: clang and its libFuzzer/ASan runtimes
 )
 
 SUDO=""

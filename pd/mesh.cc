@@ -5,6 +5,7 @@
 #include <OpenMesh/Core/Mesh/PolyMesh_ArrayKernelT.hh>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -12,6 +13,7 @@
 #include <fstream>
 #include <iostream>
 #include <mutex>
+#include <regex>
 #include <sstream>
 
 namespace hapticpd::pd {
@@ -71,6 +73,14 @@ class SoupImporter final : public OpenMesh::IO::ImporterT<OmMesh> {
   std::vector<std::vector<Index>> faces;
 };
 
+// `s` with bytes outside printable ASCII shown as '?', for error messages.
+std::string Printable(std::string s) {
+  for (char& c : s) {
+    if (c < 0x20 || c > 0x7e) c = '?';
+  }
+  return s;
+}
+
 // OpenMesh's OBJ reader silently skips a vertex line it cannot parse (e.g.
 // "v nan 0 0"), which would shift every later index, and silently drops faces
 // that repeat a vertex. Scan the text first so such files fail with the real
@@ -83,7 +93,21 @@ std::size_t PrescanObj(const std::string& path) {
     ++lineno;
     std::size_t i = line.find_first_not_of(" \t");
     if (i == std::string::npos || line.compare(i, 2, "v ") != 0) {
-      if (i != std::string::npos && line.compare(i, 2, "f ") == 0) ++faces;
+      if (i != std::string::npos && line.compare(i, 2, "f ") == 0) {
+        ++faces;
+        // Every corner ("v", "v/vt", "v//vn", "v/vt/vn") starts with an index;
+        // OpenMesh's reader aborts the process (an assert) on a face whose
+        // corners yield none, e.g. "f /x/".
+        std::istringstream corners(line.substr(i + 2));
+        std::string c;
+        while (corners >> c) {
+          const std::size_t d = c[0] == '-' ? 1 : 0;
+          if (d >= c.size() || !std::isdigit(static_cast<unsigned char>(c[d]))) {
+            throw MeshError(path + ": line " + std::to_string(lineno) + ": face corner '" +
+                            Printable(c) + "' does not start with a vertex index");
+          }
+        }
+      }
       continue;
     }
     const char* p = line.c_str() + i + 2;
@@ -126,13 +150,23 @@ void PrescanOff(const std::string& path) {
   std::string magic;
   header >> magic;
   if (magic.find("OFF") == std::string::npos) throw MeshError(where() + "missing OFF header");
-  if (magic.size() > 3 && magic != "OFF") return;  // COFF/NOFF/...: leave to the reader
-  long nv = -1, nf = -1, ne = -1;
-  if (!(header >> nv)) {
-    if (!next_line()) throw MeshError(path + ": truncated before the element counts");
-    header = std::istringstream(line);
-    header >> nv;
+  if (magic != "OFF") {
+    // COFF/NOFF/4OFF/OFF BINARY...: OpenMesh's reader takes their bodies on
+    // trust (element and face-corner counts are reserved up front, so a
+    // hostile file allocates gigabytes); only plain OFF, checked line by
+    // line below, is accepted.
+    throw MeshError(where() + "OFF variant '" + Printable(magic) +
+                    "' is not supported (plain OFF only)");
   }
+  long nv = -1, nf = -1, ne = -1;
+  // OpenMesh reads the counts from the line after "OFF" only (counts on the
+  // magic line are misread, e.g. as a huge allocation); so do we.
+  if (header >> std::ws, !header.eof()) {
+    throw MeshError(where() + "element counts must be on the line after 'OFF'");
+  }
+  if (!next_line()) throw MeshError(path + ": truncated before the element counts");
+  header = std::istringstream(line);
+  header >> nv;
   if (!(header >> nf >> ne) || nv < 0 || nf < 0) {
     throw MeshError(where() + "bad element counts (expected: vertices faces edges)");
   }
@@ -191,6 +225,77 @@ void PrescanStl(const std::string& path) {
     return;
   }
   if (!ascii) throw MeshError(path + ": not a valid STL: too short for binary and not ASCII");
+}
+
+// PLY: OpenMesh's reader loops forever (and logs without bound) on a header
+// that never ends, and reserves element counts up front; require the "ply"
+// magic, an end_header line, and counts a file of this size can hold.
+void PrescanPly(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string line;
+  if (!std::getline(in, line) || line.rfind("ply", 0) != 0) {
+    throw MeshError(path + ": not a valid PLY: missing the 'ply' magic line");
+  }
+  const auto size = std::filesystem::file_size(path);
+  std::size_t lineno = 1;
+  int elements = 0;
+  while (std::getline(in, line)) {
+    ++lineno;
+    if (line == "end_header" || line == "end_header\r") return;
+    std::istringstream words(line);
+    std::string keyword, name;
+    long long count = 0;
+    words >> keyword;
+    // OpenMesh also loops on header lines it does not expect.
+    if (keyword == "format") {
+      std::string version;
+      words >> name >> version;
+      if ((name != "ascii" && name != "binary_little_endian" && name != "binary_big_endian") ||
+          version != "1.0") {
+        throw MeshError(path + ": not a valid PLY: line " + std::to_string(lineno) +
+                        ": expected 'format ascii|binary_little_endian|binary_big_endian 1.0'");
+      }
+      continue;
+    }
+    if (!keyword.empty() && keyword != "element" && keyword != "property" && keyword != "comment" &&
+        keyword != "obj_info") {
+      throw MeshError(path + ": not a valid PLY: line " + std::to_string(lineno) +
+                      ": unknown header keyword '" + Printable(keyword) + "'");
+    }
+    if (keyword == "element") ++elements;
+    if (keyword == "property" && elements == 0) {
+      // OpenMesh's reader crashes (a wild read) on a property before any element.
+      throw MeshError(path + ": not a valid PLY: line " + std::to_string(lineno) +
+                      ": property before any element");
+    }
+    if (keyword == "property") {
+      static const std::regex type(
+          "char|uchar|short|ushort|int|uint|float|double|int8|uint8|int16|uint16|int32|uint32|"
+          "float32|float64");
+      std::string t;
+      words >> t;
+      const bool list = t == "list";
+      std::string t2, t3;
+      if (list) words >> t2 >> t3;
+      words >> name;
+      if (!std::regex_match(list ? t2 : t, type) || (list && !std::regex_match(t3, type)) ||
+          name.empty() || !(words >> std::ws).eof()) {
+        throw MeshError(path + ": not a valid PLY: line " + std::to_string(lineno) +
+                        ": expected 'property TYPE NAME' or 'property list TYPE TYPE NAME'");
+      }
+      continue;
+    }
+    if (keyword == "element" && (!(words >> name >> count) || !(words >> std::ws).eof())) {
+      throw MeshError(path + ": not a valid PLY: line " + std::to_string(lineno) +
+                      ": expected 'element NAME COUNT'");
+    }
+    if (keyword == "element" && (count < 0 || static_cast<unsigned long long>(count) > size)) {
+      throw MeshError(path + ": not a valid PLY: element " + name + " count " +
+                      std::to_string(count) + " is more than a file of " + std::to_string(size) +
+                      " bytes can hold");
+    }
+  }
+  throw MeshError(path + ": not a valid PLY: the header has no end_header line");
 }
 
 std::string Lower(std::string s) {
@@ -397,6 +502,7 @@ Mesh LoadMesh(const std::string& path, const MeshOptions& options) {
   const std::size_t obj_faces = ext == ".obj" ? PrescanObj(path) : 0;
   if (ext == ".off") PrescanOff(path);
   if (ext == ".stl") PrescanStl(path);
+  if (ext == ".ply") PrescanPly(path);
   OmMesh om;
   SoupImporter importer(om);
   OpenMesh::IO::Options opt;

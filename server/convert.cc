@@ -183,7 +183,7 @@ grpc::Status MeshFromBytes(const std::string& bytes, v1::MeshFormat format, std:
     default:
       return InvalidArgument(Join(field, "format"), "unspecified or unknown mesh format");
   }
-  if (bytes.empty()) return InvalidArgument(Join(field, "chunk"), "no mesh bytes were sent");
+  if (bytes.empty()) return InvalidArgument(field, "no mesh bytes were sent");
   // pd::LoadMesh reads files (with format pre-scans); give it a private one.
   static std::atomic<std::uint64_t> counter{0};
   const std::filesystem::path dir = std::filesystem::temp_directory_path();
