@@ -37,7 +37,8 @@ void Scene::Publish(std::shared_ptr<SceneSnapshot> next) {
   changes_.Notify();
 }
 
-grpc::Status Scene::AddBody(BodyState body, std::size_t max_bodies, BodyState* added) {
+grpc::Status Scene::AddBody(BodyState body, std::size_t max_bodies, BodyState* added,
+                            const std::string& id_field) {
   std::lock_guard lock(write_mu_);
   if (deleted())
     return grpc::Status(grpc::StatusCode::NOT_FOUND, "scene '" + id_ + "' was deleted");
@@ -53,7 +54,7 @@ grpc::Status Scene::AddBody(BodyState body, std::size_t max_bodies, BodyState* a
     } while (cur->Find(body.id) != nullptr);
   } else if (cur->Find(body.id) != nullptr) {
     return grpc::Status(grpc::StatusCode::ALREADY_EXISTS,
-                        "spec.body_id: scene '" + id_ + "' already has a body '" + body.id + "'");
+                        id_field + ": scene '" + id_ + "' already has a body '" + body.id + "'");
   }
   auto next = std::make_shared<SceneSnapshot>(*cur);
   next->revision = cur->revision + 1;
@@ -150,7 +151,7 @@ grpc::Status SceneRegistry::Create(const std::string& id, const std::string& des
   }
   if (scenes_.size() >= max_scenes) {
     return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
-                        "the server already hosts " + std::to_string(scenes_.size()) +
+                        "scene_id: the server already hosts " + std::to_string(scenes_.size()) +
                             " scenes (limit " + std::to_string(max_scenes) + ")");
   }
   auto scene = std::make_shared<Scene>(id, description, signal_);

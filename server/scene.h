@@ -84,8 +84,10 @@ class Scene {
   SnapshotPtr snapshot() const { return snapshot_.load(std::memory_order_acquire); }
 
   /// Adds a body; assigns "body-N" when body.id is empty. ALREADY_EXISTS on a
-  /// duplicate id, RESOURCE_EXHAUSTED beyond `max_bodies`.
-  grpc::Status AddBody(BodyState body, std::size_t max_bodies, BodyState* added);
+  /// duplicate id (the message names `id_field`), RESOURCE_EXHAUSTED beyond
+  /// `max_bodies`.
+  grpc::Status AddBody(BodyState body, std::size_t max_bodies, BodyState* added,
+                       const std::string& id_field);
   /// NOT_FOUND, FAILED_PRECONDITION (static body) or OK with the new revision.
   grpc::Status MoveBody(const std::string& id, const Pose& X_WB, const Vec3* v_W, const Vec3* w_W,
                         std::uint64_t* revision);

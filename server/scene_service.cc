@@ -138,7 +138,9 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
     if (s.ok()) s = MakeBody(core_, header_.spec(), "header.spec", std::move(*mesh), &body);
     if (s.ok() && core_->shutting_down.load()) s = core_->Unavailable();
     BodyState added;
-    if (s.ok()) s = scene_->AddBody(std::move(body), core_->limits.max_bodies_per_scene, &added);
+    if (s.ok())
+      s = scene_->AddBody(std::move(body), core_->limits.max_bodies_per_scene, &added,
+                          "header.spec.body_id");
     if (s.ok()) {
       FillBody(added, false, resp_);
       Log()->info("scene '{}': added body '{}' ({} triangles)", scene_->id(), added.id,

@@ -128,7 +128,9 @@ void HapticServer::Impl::LoadSceneFile(const std::string& path) {
       }
       BodyState body;
       if (s.ok()) s = internal::MakeBody(&core, b.spec, where, std::move(*mesh), &body);
-      if (s.ok()) s = scene->AddBody(std::move(body), core.limits.max_bodies_per_scene, nullptr);
+      if (s.ok())
+        s = scene->AddBody(std::move(body), core.limits.max_bodies_per_scene, nullptr,
+                           where + ".id");
       if (!s.ok()) throw std::runtime_error(s.error_message());
     }
     Log()->info("scene '{}' loaded from {} ({} bodies)", id, path,

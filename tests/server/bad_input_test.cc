@@ -223,9 +223,10 @@ TEST_F(BadInputTable, SceneServiceRequests) {
   rows.push_back({"AddBody: bad body id", [&] { return Add({shape(MakePose(0, 0, 0), "a b")}); },
                   StatusCode::INVALID_ARGUMENT,
                   "header.spec.body_id: may only contain A-Z a-z 0-9 _ . - (got 'a b')"});
-  rows.push_back(
-      {"AddBody: duplicate body id", [&] { return Add({shape(MakePose(0, 0, 0), "keep")}); },
-       StatusCode::ALREADY_EXISTS, "spec.body_id: scene 'default' already has a body 'keep'"});
+  rows.push_back({"AddBody: duplicate body id",
+                  [&] { return Add({shape(MakePose(0, 0, 0), "keep")}); },
+                  StatusCode::ALREADY_EXISTS,
+                  "header.spec.body_id: scene 'default' already has a body 'keep'"});
   rows.push_back({"AddBody: unknown scene",
                   [&] { return Add({ShapeHeader("nope", "box", "", MakePose(0, 0, 0))}); },
                   StatusCode::NOT_FOUND, "scene_id: no scene 'nope'"});
@@ -283,7 +284,8 @@ TEST_F(BadInputTable, SceneServiceRequests) {
   rows.push_back({"CreateScene: existing id", [&] { return CreateId("lab"); },
                   StatusCode::ALREADY_EXISTS, "scene_id: scene 'lab' exists"});
   rows.push_back({"CreateScene: over the scene limit", [&] { return CreateId("third"); },
-                  StatusCode::RESOURCE_EXHAUSTED, "the server already hosts 2 scenes (limit 2)"});
+                  StatusCode::RESOURCE_EXHAUSTED,
+                  "scene_id: the server already hosts 2 scenes (limit 2)"});
   rows.push_back({"DeleteScene: unknown scene", [&] { return Delete("nope"); },
                   StatusCode::NOT_FOUND, "scene_id: no scene 'nope'"});
   rows.push_back({"any RPC: no token", [&] { return Remove("default", "keep", ""); },
