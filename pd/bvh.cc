@@ -183,6 +183,7 @@ SweptBoxFrame::SweptBoxFrame(const Pose& X_BA, const Vec3& sweep_B) : f(X_BA), s
   for (int k = 0; k < 6; ++k) inv[k] = v[k] != 0 ? 1.0 / v[k] : 0.0;
   for (int i = 0; i < 3; ++i) {
     t[i] = f.t[i];
+    rtt[i] = R.col(i).dot(f.t);
     for (int j = 0; j < 3; ++j) {
       r[i][j] = f.R(i, j);
       ar[i][j] = f.absR(i, j);
@@ -204,18 +205,14 @@ inline bool ClipAxis(double c, double r, double v, double inv, double* lo, doubl
 
 bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const BvhNode& b, double t_max,
                      double* t_enter, double margin) {
-  // The hottest function of a PDt query (about 40% of its instructions
-  // with all 15 axes): plain scalar code on the frame's copied entries.
-  const double(&R)[3][3] = sf.r;
-  const double(&AR)[3][3] = sf.ar;
-  const double ea0 = a.half[0], ea1 = a.half[1], ea2 = a.half[2];
-  const double eb0 = b.half[0], eb1 = b.half[1], eb2 = b.half[2];
-  const double ac0 = a.center[0], ac1 = a.center[1], ac2 = a.center[2];
-  const double T[3] = {R[0][0] * ac0 + R[0][1] * ac1 + R[0][2] * ac2 + sf.t[0] - b.center[0],
-                       R[1][0] * ac0 + R[1][1] * ac1 + R[1][2] * ac2 + sf.t[1] - b.center[1],
-                       R[2][0] * ac0 + R[2][1] * ac1 + R[2][2] * ac2 + sf.t[2] - b.center[2]};
-  const double eb[3] = {eb0, eb1, eb2};
-  const double ea[3] = {ea0, ea1, ea2};
+  return BoxesSweptEnter(sf, a, RotateBoxA(sf, a), b, RotateBoxB(sf, b), t_max, t_enter, margin);
+}
+
+bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const RotatedBox& ra,
+                     const BvhNode& b, const RotatedBox& rb, double t_max, double* t_enter,
+                     double margin) {
+  // The hottest function of a PDt query: plain scalar code on the boxes'
+  // rotated parts (computed once per node by the caller).
   double lo = 0, hi = t_max;
   // Along axis L: |T.L + t s.L| <= r must hold at contact, with s.L the
   // sweep's projection. Radii are inflated by the margin and a round-off
@@ -224,15 +221,14 @@ bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const BvhNode& b
     r += margin + 1e-12 * (std::abs(c) + r);
     return ClipAxis(c, r, sf.v[k], sf.inv[k], &lo, &hi);
   };
-  // Face axes of B.
+  // Face axes of B: centre offset R a.c + t - b.c.
   for (int i = 0; i < 3; ++i) {
-    if (!clip(i, T[i], AR[i][0] * ea0 + AR[i][1] * ea1 + AR[i][2] * ea2 + eb[i])) return false;
+    if (!clip(i, ra.c[i] + sf.t[i] - b.center[i], ra.r[i] + b.half[i])) return false;
   }
-  // Face axes of A: column j of R.
+  // Face axes of A (column j of R): the same offset on A's axes,
+  // a.c + R^T t - R^T b.c.
   for (int j = 0; j < 3; ++j) {
-    const double c = R[0][j] * T[0] + R[1][j] * T[1] + R[2][j] * T[2];
-    const double r = ea[j] + AR[0][j] * eb0 + AR[1][j] * eb1 + AR[2][j] * eb2;
-    if (!clip(3 + j, c, r)) return false;
+    if (!clip(3 + j, a.center[j] + sf.rtt[j] - rb.c[j], a.half[j] + rb.r[j])) return false;
   }
   // No cross axes: they are a tenth fewer visits at twice the cost per
   // pair (measured with callgrind on the three PDt benchmarks: 17-19% fewer

@@ -84,6 +84,7 @@ struct SweptBoxFrame {
   double r[3][3];             ///< f.R, f.absR and f.t as plain arrays for the
   double ar[3][3];            ///< per-pair test's scalar code
   double t[3];
+  double rtt[3];  ///< R^T t: A's origin offset on A's axes
   SweptBoxFrame(const Pose& X_BA, const Vec3& sweep_B);
 };
 
@@ -97,6 +98,41 @@ struct SweptBoxFrame {
 /// within `margin` of each other.
 bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const BvhNode& b, double t_max,
                      double* t_enter, double margin = 0);
+
+/// The parts of BoxesSweptEnter that depend on one box and the rotation
+/// only, so a caller whose sweeps share the rotation (PDt's) computes them
+/// once per node: for box a, c = R a.center and r = |R| a.half (its radii on
+/// B's axes); for box b, c = R^T b.center and r = |R|^T b.half (its radii
+/// on A's axes). R = sf.f.R, |R| = sf.f.absR.
+struct RotatedBox {
+  Vec3 c;
+  Vec3 r;
+};
+inline RotatedBox RotateBoxA(const SweptBoxFrame& sf, const BvhNode& a) {
+  RotatedBox o;
+  const double(&R)[3][3] = sf.r;
+  const double(&AR)[3][3] = sf.ar;
+  for (int i = 0; i < 3; ++i) {
+    o.c[i] = R[i][0] * a.center[0] + R[i][1] * a.center[1] + R[i][2] * a.center[2];
+    o.r[i] = AR[i][0] * a.half[0] + AR[i][1] * a.half[1] + AR[i][2] * a.half[2];
+  }
+  return o;
+}
+inline RotatedBox RotateBoxB(const SweptBoxFrame& sf, const BvhNode& b) {
+  RotatedBox o;
+  const double(&R)[3][3] = sf.r;
+  const double(&AR)[3][3] = sf.ar;
+  for (int j = 0; j < 3; ++j) {
+    o.c[j] = R[0][j] * b.center[0] + R[1][j] * b.center[1] + R[2][j] * b.center[2];
+    o.r[j] = AR[0][j] * b.half[0] + AR[1][j] * b.half[1] + AR[2][j] * b.half[2];
+  }
+  return o;
+}
+
+/// BoxesSweptEnter with both boxes' rotated parts given.
+bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const RotatedBox& ra,
+                     const BvhNode& b, const RotatedBox& rb, double t_max, double* t_enter,
+                     double margin);
 
 /// A lower bound on the distance between box a and box b, from the 6 face
 /// axes (0 when they may overlap).

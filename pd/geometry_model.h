@@ -3,6 +3,8 @@
 #pragma once
 
 #include <algorithm>
+#include <atomic>
+#include <cstdint>
 #include <memory>
 
 #include "pd/bvh.h"
@@ -15,7 +17,8 @@ namespace hapticpd::pd {
 class GeometryModel {
  public:
   explicit GeometryModel(Mesh mesh)
-      : mesh_(std::move(mesh)),
+      : uid_(NextUid()),
+        mesh_(std::move(mesh)),
         bvh_(mesh_),
         mass_(ComputeMassProperties(mesh_)),
         convex_(IsConvexMesh(mesh_)) {
@@ -34,8 +37,16 @@ class GeometryModel {
   /// Largest distance of a vertex from the centre of mass (m): bounds the
   /// speed of any point under a rotation about the centre of mass.
   double radius_about_com() const { return radius_about_com_; }
+  /// Unique per constructed model in this process (never reused, unlike an
+  /// address): keys caches of derived data in query scratch.
+  std::uint64_t uid() const { return uid_; }
 
  private:
+  static std::uint64_t NextUid() {
+    static std::atomic<std::uint64_t> next{1};
+    return next.fetch_add(1, std::memory_order_relaxed);
+  }
+  std::uint64_t uid_;
   Mesh mesh_;
   Bvh bvh_;
   MassProperties mass_;

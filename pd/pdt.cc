@@ -5,8 +5,6 @@
 #include <cmath>
 #include <limits>
 
-#include <cstdio>
-#include <cstdlib>
 #include "pd/convex.h"
 #include "pd/material.h"
 
@@ -173,22 +171,6 @@ void BuildRegions(const std::vector<FeaturePair>& features, const Vec3& d_W, dou
     (*regions)[out++] = reg;
   }
   regions->resize(out);
-}
-
-Wrench PenaltyWrench(const PenetrationResult& result, const Material& material,
-                     const Vec3& p_WAcm) {
-  Wrench w;
-  if (result.status == PdStatus::kSeparated || result.status == PdStatus::kFailed) return w;
-  if (result.regions.empty()) {
-    w.force = material.stiffness * result.translation_W;
-    return w;
-  }
-  for (const ContactRegion& r : result.regions) {
-    const Vec3 f = material.stiffness * r.local_depth_W;
-    w.force += f;
-    w.torque += (r.p_W - p_WAcm).cross(f);
-  }
-  return w;
 }
 
 // ---------------------------------------------------------------------------

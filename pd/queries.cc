@@ -66,6 +66,107 @@ class ATriangleCache {
   Vec3 hi_ = Vec3::Zero();
 };
 
+// A's BVH boxes and triangles rotated into B's frame, and B's boxes onto
+// A's axes, through the scratch's lazily filled tables: every sweep of a
+// PDt query shares one rotation, so each node and triangle is rotated once
+// per query instead of once per pair test. Triangle accessors mirror
+// ATriangleCache (with the sweep's start translation added).
+class RotationCache {
+ public:
+  RotationCache(const GeometryModel& A, const GeometryModel& B, const Pose& X_BA,
+                const internal::SweptBoxFrame& swept, QueryScratch* s)
+      : A_(A), B_(B), t_(X_BA.t), swept_(swept), s_(*s) {
+    if (s_.rotated_model != A.uid() || s_.rotated_b_model != B.uid() || s_.rotated_R != X_BA.R) {
+      s_.rotated_model = A.uid();
+      s_.rotated_b_model = B.uid();
+      s_.rotated_R = X_BA.R;
+      if (++s_.rotated_stamp == 0) {  // wrapped: forget every entry
+        for (auto* v :
+             {&s_.rotated_node_stamp, &s_.rotated_b_node_stamp, &s_.rotated_triangle_stamp}) {
+          std::fill(v->begin(), v->end(), 0u);
+        }
+        s_.rotated_stamp = 1;
+      }
+    }
+    Fit(A.bvh().nodes().size(), &s_.rotated_nodes, &s_.rotated_node_stamp);
+    Fit(B.bvh().nodes().size(), &s_.rotated_b_nodes, &s_.rotated_b_node_stamp);
+    Fit(A.mesh().triangles().size(), &s_.rotated_triangles, &s_.rotated_triangle_stamp);
+  }
+
+  const internal::RotatedBox& NodeA(const BvhNode& n) {
+    return Cached(&n - A_.bvh().nodes().data(), &s_.rotated_nodes, &s_.rotated_node_stamp,
+                  [&](internal::RotatedBox* r) { *r = internal::RotateBoxA(swept_, n); });
+  }
+  const internal::RotatedBox& NodeB(const BvhNode& n) {
+    return Cached(&n - B_.bvh().nodes().data(), &s_.rotated_b_nodes, &s_.rotated_b_node_stamp,
+                  [&](internal::RotatedBox* r) { *r = internal::RotateBoxB(swept_, n); });
+  }
+
+  const TriB& Tri(Index f) {
+    Load(f);
+    return tri_;
+  }
+  const Vec3& Normal(Index f) {
+    Load(f);
+    return normal_;
+  }
+  const Vec3& Lo(Index f) {
+    Load(f);
+    return lo_;
+  }
+  const Vec3& Hi(Index f) {
+    Load(f);
+    return hi_;
+  }
+
+ private:
+  void Load(Index f) {
+    if (f == f_) return;
+    f_ = f;
+    const QueryScratch::RotatedTriangle& r =
+        Cached(f, &s_.rotated_triangles, &s_.rotated_triangle_stamp,
+               [&](QueryScratch::RotatedTriangle* o) {
+                 const Triangle& t = A_.mesh().triangles()[f];
+                 const auto& V = A_.mesh().vertices();
+                 for (int k = 0; k < 3; ++k) o->v[k] = s_.rotated_R * V[t[k]];
+                 o->n = s_.rotated_R * A_.mesh().face_normals()[f];
+               });
+    for (int k = 0; k < 3; ++k) tri_.v[k] = r.v[k] + t_;
+    normal_ = r.n;
+    lo_ = tri_.v[0].cwiseMin(tri_.v[1]).cwiseMin(tri_.v[2]);
+    hi_ = tri_.v[0].cwiseMax(tri_.v[1]).cwiseMax(tri_.v[2]);
+  }
+  // Grows a table (and its stamps, as "not computed") to n entries: warm-up
+  // only, the tables keep their size across queries.
+  template <typename T>
+  static void Fit(std::size_t n, std::vector<T>* table, std::vector<std::uint32_t>* stamps) {
+    if (stamps->size() >= n) return;
+    table->resize(n);
+    stamps->resize(n, 0u);
+  }
+  template <typename T, typename Fill>
+  const T& Cached(std::ptrdiff_t i, std::vector<T>* table, std::vector<std::uint32_t>* stamps,
+                  Fill&& fill) {
+    const auto k = static_cast<std::size_t>(i);
+    T& entry = (*table)[k];
+    if ((*stamps)[k] != s_.rotated_stamp) {
+      (*stamps)[k] = s_.rotated_stamp;
+      fill(&entry);
+    }
+    return entry;
+  }
+  const GeometryModel& A_;
+  const GeometryModel& B_;
+  const Vec3 t_;
+  const internal::SweptBoxFrame& swept_;
+  QueryScratch& s_;
+  Index f_ = -1;
+  TriB tri_;
+  Vec3 normal_ = Vec3::Zero();
+  Vec3 lo_ = Vec3::Zero();
+  Vec3 hi_ = Vec3::Zero();
+};
+
 inline TriB TriangleOfB(const Mesh& B, Index f) {
   const Triangle& t = B.triangles()[f];
   const auto& V = B.vertices();
@@ -738,7 +839,7 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   const double feature_tol = std::max(0.0, request.feature_tolerance);
   auto& visited = scratch->leaf_pairs;
   visited.clear();
-  ATriangleCache a_tris(ma, X_BA);
+  RotationCache a_tris(A, B, X_BA, swept, scratch);
   // Round-off slack for the per-triangle box cull (relative to the scene's
   // coordinates and the sweep).
   const double box_slack = 1e-12 * (1.0 + mb.bounds().hi.cwiseAbs().maxCoeff() +
@@ -748,7 +849,8 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   // finds the first contact early and prunes everything behind it.
   auto earliest = [&](const BvhNode& na, const BvhNode& nb) {
     double t;
-    return internal::BoxesSweptEnter(swept, na, nb, t_best, &t, feature_tol)
+    return internal::BoxesSweptEnter(swept, na, a_tris.NodeA(na), nb, a_tris.NodeB(nb), t_best, &t,
+                                     feature_tol)
                ? t
                : std::numeric_limits<double>::infinity();
   };
@@ -827,10 +929,36 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
             hit = true;
           }
         }
+        // Sweep-plane filter for edge pairs: edge a moving along d stays in
+        // the plane through it spanned by d, so edge b must reach that plane
+        // (and edge a the plane through edge b spanned by d). Both endpoints
+        // beyond it by more than a pad far above SegmentSegmentToi's contact
+        // tolerance (kContactTol times the coordinates' scale): no event.
+        double pad = -1;  // computed for the first edge pair that needs it
+        auto beyond = [&](const Vec3& p0, const Vec3& p1, const Vec3& q0, const Vec3& q1) {
+          const Vec3 m = (p1 - p0).cross(d_B);
+          const double mm = m.squaredNorm();
+          if (!(mm > 0)) return false;
+          const double s0 = m.dot(q0 - p0), s1 = m.dot(q1 - p0);
+          if ((s0 > 0) != (s1 > 0)) return false;
+          if (pad < 0) {
+            double scale = 0;
+            for (int k = 0; k < 3; ++k) {
+              scale =
+                  std::max({scale, ta.v[k].cwiseAbs().maxCoeff(), tb.v[k].cwiseAbs().maxCoeff()});
+            }
+            pad = 1e3 * internal::kContactTol * scale;
+          }
+          const double s = std::min(std::abs(s0), std::abs(s1));
+          return s * s > pad * pad * mm;
+        };
         for (int i = 0; i < 3; ++i) {
           if (!(own_a & (1u << (3 + i))) || edge_stays(a_side, sa, i)) continue;
           for (int j = 0; j < 3; ++j) {
             if (!(own_b & (1u << (3 + j))) || edge_stays(b_side, sb, j)) continue;
+            const Vec3 &a0 = ta.v[i], &a1 = ta.v[(i + 1) % 3];
+            const Vec3 &b0 = tb.v[j], &b1 = tb.v[(j + 1) % 3];
+            if (beyond(a0, a1, b0, b1) || beyond(b0, b1, a0, a1)) continue;
             if (internal::SegmentSegmentToi(ta.v[i], ta.v[(i + 1) % 3], d_B, tb.v[j],
                                             tb.v[(j + 1) % 3], t_best, &t) &&
                 (!hit || t < t_best)) {

@@ -13,6 +13,7 @@
 // their working size (reuse them across calls).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <vector>
 
@@ -36,6 +37,27 @@ struct QueryScratch {
   /// pairs examined.
   std::uint64_t node_tests = 0;
   std::uint64_t triangle_tests = 0;
+
+  /// Translational CCD: A's BVH boxes and triangles rotated into B's frame
+  /// (and B's boxes onto A's axes),
+  /// computed lazily, once per node and triangle, and kept for every later
+  /// sweep of the same models under the same rotation (a PDt query's sweeps
+  /// all share one). An entry is valid when its stamp equals
+  /// `rotated_stamp`; a new model or rotation bumps the stamp.
+  struct RotatedTriangle {
+    std::array<Vec3, 3> v;  ///< R_BA * vertices (add p_BAo for B's frame)
+    Vec3 n;                 ///< R_BA * face normal
+  };
+  std::vector<internal::RotatedBox> rotated_nodes;  ///< A's (RotateBoxA)
+  std::vector<std::uint32_t> rotated_node_stamp;
+  std::vector<internal::RotatedBox> rotated_b_nodes;  ///< B's (RotateBoxB)
+  std::vector<std::uint32_t> rotated_b_node_stamp;
+  std::vector<RotatedTriangle> rotated_triangles;
+  std::vector<std::uint32_t> rotated_triangle_stamp;
+  std::uint32_t rotated_stamp = 0;
+  std::uint64_t rotated_model = 0;    ///< GeometryModel::uid() of A, 0: none
+  std::uint64_t rotated_b_model = 0;  ///< and of B
+  Mat3 rotated_R = Mat3::Zero();
 };
 
 struct TrianglePair {
