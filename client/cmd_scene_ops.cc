@@ -1,19 +1,24 @@
 // Thin CLIs over SceneService: `hapticpd inject`, `move`, `remove` and
-// `scene list|create|delete|get`. Each prints what it did on stdout (the body
-// id first) and fails with "hapticpd: CMD: STATUS: message".
+// `scene list|create|delete|get|load`. Each prints what it did on stdout (the
+// body id first) and fails with "hapticpd: CMD: STATUS: message".
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <fstream>
 #include <iostream>
+#include <string>
+#include <vector>
 
 #include "client/rpc_util.h"
 #include "hapticpd/v1/scene.grpc.pb.h"
+#include "server/scene_file.h"
 
 namespace hapticpd::cli {
 namespace {
 
-v1::MeshFormat FormatOf(const std::string& path) {
+/// The upload format of a mesh file, from its extension; `what` prefixes the
+/// error (the option or scene-file key that named the file).
+v1::MeshFormat FormatOf(const std::string& path, const std::string& what) {
   std::string ext = path.substr(
       path.find_last_of('.') == std::string::npos ? path.size() : path.find_last_of('.'));
   std::transform(ext.begin(), ext.end(), ext.begin(),
@@ -22,8 +27,33 @@ v1::MeshFormat FormatOf(const std::string& path) {
   if (ext == ".stl") return v1::MESH_FORMAT_STL;
   if (ext == ".ply") return v1::MESH_FORMAT_PLY;
   if (ext == ".off") return v1::MESH_FORMAT_OFF;
-  throw CommandError("inject: --mesh: unsupported extension '" + ext +
-                     "' (use .obj, .stl, .ply or .off)");
+  throw CommandError(what + ": unsupported extension '" + ext + "' (use .obj, .stl, .ply or .off)");
+}
+
+/// The whole file, or CommandError "WHAT: cannot open PATH".
+std::string ReadBytes(const std::string& path, const std::string& what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw CommandError(what + ": cannot open " + path);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+/// One AddBody call: the header, then `bytes` (a mesh file, may be empty) in
+/// chunks of `chunk` bytes. Returns the server's status; fills `body`.
+grpc::Status UploadBody(v1::SceneService::Stub& stub, const ConnectionOptions& conn,
+                        const v1::AddBodyHeader& header, const std::string& bytes,
+                        std::size_t chunk, v1::Body* body) {
+  auto ctx = MakeContext(conn);
+  auto writer = stub.AddBody(ctx.get(), body);
+  v1::AddBodyRequest head;
+  *head.mutable_header() = header;
+  bool ok = writer->Write(head);
+  v1::AddBodyRequest part;
+  for (std::size_t off = 0; ok && off < bytes.size(); off += chunk) {
+    part.set_chunk(bytes.substr(off, chunk));
+    ok = writer->Write(part);
+  }
+  writer->WritesDone();
+  return writer->Finish();
 }
 
 struct InjectOptions {
@@ -39,10 +69,9 @@ void RunInject(const InjectOptions& o) {
   if (o.mesh.empty() == o.shape.empty()) {
     throw CommandError("inject: give exactly one of --mesh FILE or --shape SPEC");
   }
-  v1::AddBodyRequest head;
-  auto* h = head.mutable_header();
-  h->set_scene_id(o.scene);
-  auto* spec = h->mutable_spec();
+  v1::AddBodyHeader h;
+  h.set_scene_id(o.scene);
+  auto* spec = h.mutable_spec();
   spec->set_body_id(o.id);
   *spec->mutable_pose() = ParsePose(o.pose, "--pose");
   if (!o.velocity.empty()) *spec->mutable_velocity() = ParseTwist(o.velocity, "--velocity");
@@ -54,27 +83,16 @@ void RunInject(const InjectOptions& o) {
   }
   std::string bytes;
   if (!o.mesh.empty()) {
-    h->set_format(FormatOf(o.mesh));
-    std::ifstream in(o.mesh, std::ios::binary);
-    if (!in) throw CommandError("inject: --mesh: cannot open " + o.mesh);
-    bytes.assign(std::istreambuf_iterator<char>(in), {});
-    h->set_total_bytes(bytes.size());
+    h.set_format(FormatOf(o.mesh, "inject: --mesh"));
+    bytes = ReadBytes(o.mesh, "inject: --mesh");
+    h.set_total_bytes(bytes.size());
   } else {
-    h->set_shape(o.shape);
+    h.set_shape(o.shape);
   }
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
-  auto ctx = MakeContext(o.conn);
   v1::Body body;
-  auto writer = stub->AddBody(ctx.get(), &body);
-  bool ok = writer->Write(head);
   const std::size_t chunk = std::max<std::size_t>(1, o.chunk_kib) * 1024;
-  v1::AddBodyRequest part;
-  for (std::size_t off = 0; ok && off < bytes.size(); off += chunk) {
-    part.set_chunk(bytes.substr(off, chunk));
-    ok = writer->Write(part);
-  }
-  writer->WritesDone();
-  Check(writer->Finish(), "inject");
+  Check(UploadBody(*stub, o.conn, h, bytes, chunk, &body), "inject");
   std::cout << body.body_id() << "\n";
 }
 
@@ -114,12 +132,93 @@ void RunRemove(const RemoveOptions& o) {
 
 struct SceneOptions {
   ConnectionOptions conn;
-  std::string action, scene, description;
+  std::string action;
+  std::string scene;    ///< the scene id, or for `load` the scene file
+  std::string load_id;  ///< `load --scene ID`: overrides the file's scene id
+  std::string description;
+  std::size_t chunk_kib = 64;
 };
+
+/// `scene load FILE`: the scene file's scene (id, description, SceneConfig)
+/// created through CreateScene, then its bodies added in file order through
+/// AddBody, exactly as `serve --scene` preloads them. Everything local (the
+/// file, mesh extensions, mesh bytes) is checked before anything is sent; a
+/// body the server rejects deletes the scene again, so no half-loaded scene
+/// stays. Prints the scene id, then one body id a line.
+void RunSceneLoad(const SceneOptions& o) {
+  server::SceneFile f;
+  try {
+    f = server::ParseSceneFile(o.scene);
+  } catch (const server::SceneFileError& e) {
+    throw CommandError(std::string("scene load: ") + e.what());
+  }
+  const std::string id = o.load_id.empty() ? f.scene_id : o.load_id;
+  struct Upload {
+    v1::AddBodyHeader header;
+    std::string bytes;
+  };
+  std::vector<Upload> uploads;
+  for (std::size_t i = 0; i < f.bodies.size(); ++i) {
+    const server::SceneFileBody& b = f.bodies[i];
+    Upload& u = uploads.emplace_back();
+    u.header.set_scene_id(id);
+    *u.header.mutable_spec() = b.spec;
+    if (b.mesh_path.empty()) {
+      u.header.set_shape(b.shape);
+      continue;
+    }
+    const std::string key = "scene load: " + f.path + ": bodies[" + std::to_string(i) + "].mesh";
+    u.header.set_format(FormatOf(b.mesh_path, key));
+    u.bytes = ReadBytes(b.mesh_path, key);
+    u.header.set_total_bytes(u.bytes.size());
+  }
+
+  auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
+  {
+    v1::CreateSceneRequest req;
+    req.set_scene_id(id);
+    req.set_description(o.description.empty() ? f.description : o.description);
+    *req.mutable_config() = f.config;
+    v1::SceneSummary resp;
+    auto ctx = MakeContext(o.conn);
+    Check(stub->CreateScene(ctx.get(), req, &resp), "scene load: " + f.path);
+  }
+  const std::size_t chunk = std::max<std::size_t>(1, o.chunk_kib) * 1024;
+  std::vector<std::string> body_ids;
+  for (std::size_t i = 0; i < uploads.size(); ++i) {
+    v1::Body body;
+    const grpc::Status s =
+        UploadBody(*stub, o.conn, uploads[i].header, uploads[i].bytes, chunk, &body);
+    if (s.ok()) {
+      body_ids.push_back(body.body_id());
+      continue;
+    }
+    // Roll back: the scene is ours (CreateScene succeeded above).
+    v1::DeleteSceneRequest del;
+    del.set_scene_id(id);
+    v1::DeleteSceneResponse del_resp;
+    auto ctx = MakeContext(o.conn);
+    const grpc::Status d = stub->DeleteScene(ctx.get(), del, &del_resp);
+    const std::string& body_id = uploads[i].header.spec().body_id();
+    throw CommandError(
+        "scene load: " + f.path + ": bodies[" + std::to_string(i) + "]" +
+        (body_id.empty() ? "" : " ('" + body_id + "')") + ": " + StatusText(s) +
+        (d.ok() ? "; scene '" + id + "' deleted again"
+                : "; rollback failed, scene '" + id + "' is left half-loaded: " + StatusText(d)));
+  }
+  std::cout << id << "\n";
+  for (const std::string& b : body_ids) std::cout << b << "\n";
+}
 
 nlohmann::json Vec(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
 
 void RunScene(const SceneOptions& o) {
+  if (o.action == "load") {
+    if (o.scene.empty()) throw CommandError("scene load: give FILE.json");
+    RunSceneLoad(o);
+    return;
+  }
+  if (!o.load_id.empty()) throw CommandError("scene " + o.action + ": --scene is for load only");
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
   auto ctx = MakeContext(o.conn);
   if (o.action != "list" && o.scene.empty()) throw CommandError("scene " + o.action + ": give ID");
@@ -165,7 +264,8 @@ void RunScene(const SceneOptions& o) {
     }
     std::cout << j.dump(2) << "\n";
   } else {
-    throw CommandError("scene: unknown action '" + o.action + "' (list, create, delete, get)");
+    throw CommandError("scene: unknown action '" + o.action +
+                       "' (list, create, delete, get, load)");
   }
 }
 
@@ -208,11 +308,17 @@ void RegisterSceneOps(CLI::App& app) {
   }
   {
     auto o = std::make_shared<SceneOptions>();
-    auto* cmd = app.add_subcommand("scene", "List, create, delete or show scenes");
+    auto* cmd = app.add_subcommand(
+        "scene",
+        "List, create, delete or show scenes, or load a scene file (scene load FILE.json)");
     AddConnectionOptions(cmd, &o->conn);
-    cmd->add_option("action", o->action, "list | create | delete | get")->required();
-    cmd->add_option("id", o->scene, "Scene id (create, delete, get)");
-    cmd->add_option("--description", o->description, "Description (create)");
+    cmd->add_option("action", o->action, "list | create | delete | get | load")->required();
+    cmd->add_option("id", o->scene, "Scene id (create, delete, get), or FILE.json (load)");
+    cmd->add_option("--description", o->description,
+                    "Description (create; load: instead of the file's)");
+    cmd->add_option("--scene", o->load_id, "load: scene id instead of the file's \"scene\"");
+    cmd->add_option("--chunk-kib", o->chunk_kib, "load: mesh upload chunk size in KiB")
+        ->capture_default_str();
     cmd->callback([o] { RunScene(*o); });
   }
 }

@@ -72,10 +72,13 @@ std::unique_ptr<grpc::ClientContext> MakeContext(const ConnectionOptions& o, boo
   return ctx;
 }
 
+std::string StatusText(const grpc::Status& s) {
+  return std::string(server::StatusCodeName(s.error_code())) + ": " + s.error_message();
+}
+
 void Check(const grpc::Status& s, const std::string& cmd) {
   if (s.ok()) return;
-  throw CommandError(cmd + ": " + server::StatusCodeName(s.error_code()) + ": " +
-                     s.error_message());
+  throw CommandError(cmd + ": " + StatusText(s));
 }
 
 v1::Pose ParsePose(const std::string& text, const std::string& option) {

@@ -30,6 +30,8 @@ std::shared_ptr<grpc::Channel> MakeChannel(const ConnectionOptions& o);
 std::unique_ptr<grpc::ClientContext> MakeContext(const ConnectionOptions& o,
                                                  bool streaming = false);
 
+/// "CODE: message", e.g. "NOT_FOUND: scene_id: no scene 'x'".
+std::string StatusText(const grpc::Status& s);
 /// Throws CommandError "CMD: CODE: message" for a non-OK status.
 void Check(const grpc::Status& s, const std::string& cmd);
 
