@@ -44,16 +44,18 @@ namespace {
 
 constexpr double kGoalP50Us = 100;
 constexpr double kGoalP99Us = 500;
-constexpr double kFrameBudgetUs = 1000;  // 1 kHz
 
 using hp::bench::Benchmark;
-using hp::bench::BuildBenchmarks;
 using hp::bench::Percentile;
-using hp::bench::PhaseName;
 using hp::bench::Us;
 
 // ---------------------------------------------------------------------------
 // Replay
+
+/// The heading of the per-frame CSV (--frames-csv).
+constexpr char kFramesCsvHeader[] =
+    "benchmark,frame,phase,commanded_m,status,depth_m,escape_m,iterations,contacts,"
+    "pdt_us,fcl_contacts,fcl_us\n";
 
 struct FrameRecord {
   double pdt_us = 0, fcl_us = 0;
@@ -69,13 +71,10 @@ struct FrameRecord {
   bool answer_not_free = false;
 };
 
-struct Summary {
-  std::string name;
-  std::size_t probe_tris = 0, scene_tris = 0;
-  int frames = 0, penetrating = 0, cap_reached = 0, failed = 0, over_budget = 0, not_free = 0;
+/// PDt's times, iterations and contacts in the base; the rest here.
+struct Summary : hp::bench::SummaryBase {
+  int not_free = 0;
   int fcl_colliding = 0, missed_vs_fcl = 0;
-  double p50 = 0, p99 = 0, p999 = 0, max = 0;
-  double mean_iterations = 0, mean_contacts = 0;
   double fcl_p50 = 0, fcl_p99 = 0, fcl_mean_contacts = 0;
   double max_depth = 0;
   /// Largest change of the PD vector between consecutive penetrating frames
@@ -85,7 +84,6 @@ struct Summary {
   int max_jump_frame = -1;
   int worse_than_escape = 0;  ///< frames with PDt depth > 1.001 x the escape along the normal
   double median_escape_ratio = 0, max_escape_ratio = 0;  ///< PDt depth / escape
-  bool goal_met = false;
 };
 
 Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
@@ -144,25 +142,20 @@ Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
   }
 
   Summary s;
-  s.name = b.name;
-  s.probe_tris = b.probe->mesh().num_triangles();
-  s.scene_tris = b.scene->mesh().num_triangles();
-  s.frames = static_cast<int>(records->size());
+  hp::bench::BeginSummary(b, records->size(), &s);
   std::vector<double> pdt, fcl, ratios;
   long iterations = 0, contacts = 0, fcl_contacts = 0;
   for (std::size_t i = 0; i < records->size(); ++i) {
     const FrameRecord& r = (*records)[i];
     pdt.push_back(r.pdt_us);
     fcl.push_back(r.fcl_us);
-    if (r.pdt_us > kFrameBudgetUs) ++s.over_budget;
+    hp::bench::CountFrame(r.pdt_us, r.status, &s);
     if (r.fcl_contacts > 0) {
       ++s.fcl_colliding;
       fcl_contacts += r.fcl_contacts;
       // FCL sees intersecting surfaces: PDt must not call that separated.
       if (r.status == pd::PdStatus::kSeparated) ++s.missed_vs_fcl;
     }
-    if (r.status == pd::PdStatus::kPenetratingCapReached) ++s.cap_reached;
-    if (r.status == pd::PdStatus::kFailed) ++s.failed;
     if (r.status == pd::PdStatus::kSeparated) continue;
     ++s.penetrating;
     if (i > 0 && (*records)[i - 1].status != pd::PdStatus::kSeparated) {
@@ -182,121 +175,82 @@ Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
       if (r.depth > 1.001 * r.escape) ++s.worse_than_escape;
     }
   }
-  s.p50 = Percentile(pdt, 0.5);
-  s.p99 = Percentile(pdt, 0.99);
-  s.p999 = Percentile(pdt, 0.999);
-  s.max = Percentile(pdt, 1.0);
+  hp::bench::FinishSummary(pdt, iterations, contacts, kGoalP50Us, kGoalP99Us, &s);
   s.fcl_p50 = Percentile(fcl, 0.5);
   s.fcl_p99 = Percentile(fcl, 0.99);
-  s.mean_iterations = hp::bench::MeanOver(static_cast<double>(iterations), s.penetrating);
-  s.mean_contacts = hp::bench::MeanOver(static_cast<double>(contacts), s.penetrating);
   s.fcl_mean_contacts = hp::bench::MeanOver(static_cast<double>(fcl_contacts), s.fcl_colliding);
   s.median_escape_ratio = Percentile(ratios, 0.5);
-  s.goal_met = s.p50 <= kGoalP50Us && s.p99 <= kGoalP99Us;
   return s;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  hp::bench::BenchArgs args;
-  args.models = HAPTICPD_MODELS_DIR;
-  args.csv = "bench_pdt.csv";
-  if (!hp::bench::ParseBenchArgs(argc, argv, "bench_pdt", &args)) return 2;
-  const std::string& csv = args.csv;
-  const std::string& frames_csv = args.frames_csv;
-
-  std::vector<Benchmark> benchmarks = BuildBenchmarks(args.models);
-  std::vector<Summary> summaries;
-  std::ofstream per_frame;
-  if (!frames_csv.empty()) {
-    per_frame.open(frames_csv);
-    per_frame << "benchmark,frame,phase,commanded_m,status,depth_m,escape_m,iterations,contacts,"
-                 "pdt_us,fcl_contacts,fcl_us\n";
+  hp::bench::BenchRun run;
+  if (!hp::bench::StartRun(argc, argv, "bench_pdt", HAPTICPD_MODELS_DIR, kFramesCsvHeader, &run)) {
+    return 2;
   }
-  std::cout << std::fixed;
-  for (Benchmark& b : benchmarks) {
-    hp::bench::StartBenchmark(&b, args.num_frames);
-    std::vector<FrameRecord> records;
-    summaries.push_back(Replay(b, &records));
-    // The slowest frames, to see where the time goes.
-    std::vector<double> us;
-    for (const FrameRecord& r : records) us.push_back(r.pdt_us);
-    const std::vector<std::size_t> order = hp::bench::Slowest(us, 3);
-    for (std::size_t k = 0; k < order.size(); ++k) {
-      const FrameRecord& r = records[order[k]];
-      std::cout << "   slow frame " << order[k] << " (" << PhaseName(b.frames[order[k]].phase)
-                << "): " << std::setprecision(1) << r.pdt_us << " us, " << pd::ToString(r.status)
-                << ", depth " << std::setprecision(3) << r.depth * 1e3 << " mm (escape along "
-                << "the normal " << r.escape * 1e3 << " mm, commanded press "
-                << b.frames[order[k]].commanded * 1e3 << " mm), " << r.iterations << " iterations, "
-                << r.contacts << " contacts\n";
-    }
-    const Summary& s = summaries.back();
-    if (s.failed > 0 || s.missed_vs_fcl > 0 || s.cap_reached > 0 || s.worse_than_escape > 0 ||
-        s.not_free > 0) {
-      std::cout << "   WARNING: " << s.failed << " failed, " << s.cap_reached << " cap-reached, "
-                << s.not_free << " answers still colliding when nudged past the contact, "
-                << s.missed_vs_fcl << " frames FCL finds intersecting but PDt calls separated, "
-                << s.worse_than_escape
-                << " frames with a PDt depth above the escape straight back along the normal "
-                << "(worst " << std::setprecision(2) << s.max_escape_ratio << "x)\n";
-    }
-    if (s.max_jump_frame >= 0) {
-      const auto& prev = records[s.max_jump_frame - 1];
-      const auto& cur = records[s.max_jump_frame];
-      std::cout << "   largest PD jump between consecutive frames: " << std::setprecision(3)
-                << s.max_jump * 1e3 << " mm at frame " << s.max_jump_frame << " (depth "
-                << prev.depth * 1e3 << " -> " << cur.depth * 1e3 << " mm, "
-                << pd::ToString(prev.status) << " -> " << pd::ToString(cur.status) << ")\n";
-    }
-    if (per_frame) {
-      for (std::size_t i = 0; i < records.size(); ++i) {
-        const FrameRecord& r = records[i];
-        per_frame << std::setprecision(9) << b.name << "," << i << ","
-                  << PhaseName(b.frames[i].phase) << "," << b.frames[i].commanded << ","
-                  << pd::ToString(r.status) << "," << r.depth << "," << r.escape << ","
-                  << r.iterations << "," << r.contacts << "," << std::setprecision(3) << r.pdt_us
-                  << "," << r.fcl_contacts << "," << r.fcl_us << "\n";
-      }
-    }
-  }
+  const std::vector<Summary> summaries = hp::bench::ReplayAll<Summary, FrameRecord>(
+      &run, Replay,
+      [&](const Benchmark& b, const std::vector<FrameRecord>& records, const Summary& s) {
+        // The slowest frames, to see where the time goes.
+        for (std::size_t i : hp::bench::SlowestFrames(records, &FrameRecord::pdt_us, 3)) {
+          const FrameRecord& r = records[i];
+          hp::bench::PrintSlowFrameStart(b, i)
+              << std::setprecision(1) << r.pdt_us << " us, " << pd::ToString(r.status) << ", depth "
+              << std::setprecision(3) << r.depth * 1e3 << " mm (escape along "
+              << "the normal " << r.escape * 1e3 << " mm, commanded press "
+              << b.frames[i].commanded * 1e3 << " mm), " << r.iterations << " iterations, "
+              << r.contacts << " contacts\n";
+        }
+        if (s.failed > 0 || s.missed_vs_fcl > 0 || s.cap_reached > 0 || s.worse_than_escape > 0 ||
+            s.not_free > 0) {
+          std::cout << "   WARNING: " << s.failed << " failed, " << s.cap_reached
+                    << " cap-reached, " << s.not_free
+                    << " answers still colliding when nudged past the contact, " << s.missed_vs_fcl
+                    << " frames FCL finds intersecting but PDt calls separated, "
+                    << s.worse_than_escape
+                    << " frames with a PDt depth above the escape straight back along the normal "
+                    << "(worst " << std::setprecision(2) << s.max_escape_ratio << "x)\n";
+        }
+        if (s.max_jump_frame >= 0) {
+          const auto& prev = records[s.max_jump_frame - 1];
+          const auto& cur = records[s.max_jump_frame];
+          std::cout << "   largest PD jump between consecutive frames: " << std::setprecision(3)
+                    << s.max_jump * 1e3 << " mm at frame " << s.max_jump_frame << " (depth "
+                    << prev.depth * 1e3 << " -> " << cur.depth * 1e3 << " mm, "
+                    << pd::ToString(prev.status) << " -> " << pd::ToString(cur.status) << ")\n";
+        }
+      },
+      [](std::ostream& csv, const FrameRecord& r) {
+        csv << "," << r.escape << "," << r.iterations << "," << r.contacts << ","
+            << std::setprecision(3) << r.pdt_us << "," << r.fcl_contacts << "," << r.fcl_us << "\n";
+      });
 
   std::cout
       << "\nPDt per frame (us) vs FCL collide with all contacts on the same poses; goal p50 <= "
       << kGoalP50Us << " us, p99 <= " << kGoalP99Us << " us\n";
-  std::cout << std::left << std::setw(17) << "benchmark" << std::right << std::setw(7) << "tris A"
-            << std::setw(8) << "tris B" << std::setw(7) << "frames" << std::setw(6) << "pen"
-            << std::setw(9) << "p50" << std::setw(9) << "p99" << std::setw(9) << "p99.9"
-            << std::setw(9) << "max" << std::setw(6) << ">1ms" << std::setw(7) << "iters"
-            << std::setw(9) << "contacts" << std::setw(6) << "fail" << std::setw(6) << "cap"
-            << std::setw(10) << "FCL p50" << std::setw(10) << "FCL p99" << std::setw(8) << "ratio"
-            << std::setw(10) << "depth/esc" << std::setw(6) << ">esc"
+  hp::bench::PrintTableHeadStart();
+  std::cout << std::setw(6) << "fail" << std::setw(6) << "cap" << std::setw(10) << "FCL p50"
+            << std::setw(10) << "FCL p99" << std::setw(8) << "ratio" << std::setw(10) << "depth/esc"
+            << std::setw(6) << ">esc"
             << "  goal\n";
-  std::ofstream out(csv);
-  out << "benchmark,probe_triangles,scene_triangles,frames,penetrating_frames,pdt_p50_us,"
-         "pdt_p99_us,pdt_p999_us,pdt_max_us,frames_over_1ms,mean_iterations,mean_contacts,"
-         "failed,cap_reached,fcl_colliding_frames,missed_vs_fcl,fcl_mean_contacts,fcl_p50_us,"
+  std::ofstream out(run.args.csv);
+  out << hp::bench::CsvHeadStart("pdt")
+      << ",failed,cap_reached,fcl_colliding_frames,missed_vs_fcl,fcl_mean_contacts,fcl_p50_us,"
          "fcl_p99_us,ratio_p50,answers_not_free,max_depth_m,max_pd_jump_m,median_depth_over_escape,"
          "max_depth_"
          "over_escape,"
          "frames_above_escape,goal_met\n";
   for (const Summary& s : summaries) {
     const double ratio = s.fcl_p50 > 0 ? s.p50 / s.fcl_p50 : 0;
-    std::cout << std::left << std::setw(17) << s.name << std::right << std::setw(7) << s.probe_tris
-              << std::setw(8) << s.scene_tris << std::setw(7) << s.frames << std::setw(6)
-              << s.penetrating << std::setprecision(1) << std::setw(9) << s.p50 << std::setw(9)
-              << s.p99 << std::setw(9) << s.p999 << std::setw(9) << s.max << std::setw(6)
-              << s.over_budget << std::setprecision(2) << std::setw(7) << s.mean_iterations
-              << std::setprecision(1) << std::setw(9) << s.mean_contacts << std::setw(6) << s.failed
-              << std::setw(6) << s.cap_reached << std::setw(10) << s.fcl_p50 << std::setw(10)
-              << s.fcl_p99 << std::setprecision(2) << std::setw(8) << ratio << std::setw(10)
-              << s.median_escape_ratio << std::setw(6) << s.worse_than_escape << "  "
-              << (s.goal_met ? "met" : "NOT met") << "\n";
-    out << std::setprecision(6) << s.name << "," << s.probe_tris << "," << s.scene_tris << ","
-        << s.frames << "," << s.penetrating << "," << s.p50 << "," << s.p99 << "," << s.p999 << ","
-        << s.max << "," << s.over_budget << "," << s.mean_iterations << "," << s.mean_contacts
-        << "," << s.failed << "," << s.cap_reached << "," << s.fcl_colliding << ","
+    hp::bench::PrintTableRowStart(s);
+    std::cout << std::setw(6) << s.failed << std::setw(6) << s.cap_reached << std::setw(10)
+              << s.fcl_p50 << std::setw(10) << s.fcl_p99 << std::setprecision(2) << std::setw(8)
+              << ratio << std::setw(10) << s.median_escape_ratio << std::setw(6)
+              << s.worse_than_escape << "  " << (s.goal_met ? "met" : "NOT met") << "\n";
+    hp::bench::WriteCsvRowStart(out, s);
+    out << "," << s.failed << "," << s.cap_reached << "," << s.fcl_colliding << ","
         << s.missed_vs_fcl << "," << s.fcl_mean_contacts << "," << s.fcl_p50 << "," << s.fcl_p99
         << "," << ratio << "," << s.not_free << "," << s.max_depth << "," << s.max_jump << ","
         << s.median_escape_ratio << "," << s.max_escape_ratio << "," << s.worse_than_escape << ","
@@ -306,8 +260,6 @@ int main(int argc, char** argv) {
                "PDt p50 / FCL p50 (< 1: PDt faster); depth/esc = median PDt depth over the "
                "escape straight back along the pressing normal (exact CCD; the true PDt is never "
                "larger), >esc = frames where PDt exceeds that escape by over 0.1%\n";
-  std::cout << "CSV written to " << csv;
-  if (!frames_csv.empty()) std::cout << ", per-frame CSV to " << frames_csv;
-  std::cout << "\n";
+  hp::bench::PrintCsvWritten(run.args.csv, run.args.frames_csv);
   return 0;
 }

@@ -16,9 +16,7 @@ namespace hapticpd {
 namespace {
 
 using device::HandScript;
-using device::ServoConfig;
 using device::ServoLoop;
-using device::SimulatedDevice;
 using device::TickRecord;
 using device::Vec3;
 using testing::kProbeRadius;
@@ -27,23 +25,16 @@ class DelayProxyTest : public ::testing::TestWithParam<int> {};
 
 TEST_P(DelayProxyTest, PassivityObserverAndForceLimitUnderDelay) {
   const int delay_ms = GetParam();
-  auto server = testing::StartServer("127.0.0.1:0");
-  testing::AddBox(*server);
+  testing::Rig rig;
+  testing::AddBox(*rig.server);
   testing::DelayProxy::Options po;
   po.delay = std::chrono::milliseconds(delay_ms);
   po.jitter = std::chrono::microseconds(200 * delay_ms);  // +-20%
   po.seed = static_cast<std::uint64_t>(delay_ms);
-  testing::DelayProxy proxy(server->port(), po);
-
-  client::Session session(testing::Options(proxy.port()));
-  session.Connect();
-  SimulatedDevice dev(testing::Script(HandScript::kLoop, kProbeRadius + 0.003, 2.0, 0.012),
-                      &device::SteadyClock::Instance());
-  dev.Open();
-  ServoConfig config;
-  config.X_PA = session.X_PA();
-  ServoLoop loop(&dev, config);
-  session.Start(&loop);
+  testing::DelayProxy proxy(rig.server->port(), po);
+  rig.Connect(testing::Script(HandScript::kLoop, kProbeRadius + 0.003, 2.0, 0.012), {},
+              proxy.port());
+  ServoLoop& loop = *rig.loop;
   double work_in = 0;  // energy the hand spent pushing into the contact (J)
   Vec3 last_v = Vec3::Zero(), last_F = Vec3::Zero();
   testing::RunTicks(loop, 2000, [&](const TickRecord& r) {
@@ -53,9 +44,9 @@ TEST_P(DelayProxyTest, PassivityObserverAndForceLimitUnderDelay) {
     last_F = r.F_cmd_W.force;
     return true;
   });
-  session.Stop();
+  rig.session->Stop();
   const device::ServoStats& st = loop.stats();
-  const client::SessionStats ss = session.stats();
+  const client::SessionStats ss = rig.session->stats();
   const double eps = 0.02 * work_in + 1e-4;  // as in device_e2e_test's closed loop
   std::printf(
       "delay %3d ms +-%d%%: rtt p50 %.1f ms p99 %.1f ms, updates %llu (contact %llu), stale "
@@ -64,15 +55,15 @@ TEST_P(DelayProxyTest, PassivityObserverAndForceLimitUnderDelay) {
       delay_ms, 20, ss.rtt_p50_us / 1e3, ss.rtt_p99_us / 1e3,
       static_cast<unsigned long long>(ss.updates),
       static_cast<unsigned long long>(ss.contact_updates),
-      static_cast<unsigned long long>(st.stale_ticks), st.max_force, dev.info().max_force, work_in,
-      st.energy_into_hand_j, st.passivity_min_j, eps);
+      static_cast<unsigned long long>(st.stale_ticks), st.max_force, rig.device->info().max_force,
+      work_in, st.energy_into_hand_j, st.passivity_min_j, eps);
   EXPECT_GT(proxy.bytes(), 0u) << "the session did not go through the proxy";
   EXPECT_GT(ss.contact_updates, 10u) << "the loop never got contact through the proxy";
   // At 100 ms the IR is stale much of the time and the force stays small
   // (0.37-0.73 N measured against ~2 N at 5-20 ms); 0.2 N is still a press.
   EXPECT_GT(st.max_force, 0.2) << "the loop never pressed into the box";
-  EXPECT_LE(st.max_force, dev.info().max_force);
-  server->Shutdown();
+  EXPECT_LE(st.max_force, rig.device->info().max_force);
+  rig.server->Shutdown();
   // FINDING (issue 8): at 20 ms one way the loop is active: the observer
   // reaches about -7 to -9 mJ (a third of the hand's input work) and the
   // hand gets 2-4 mJ net back, run after run; at 5, 50 and 100 ms it stays

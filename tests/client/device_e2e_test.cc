@@ -22,40 +22,14 @@
 namespace hapticpd {
 namespace {
 
-using client::Session;
 using device::HandScript;
 using device::Pose;
 using device::ServoConfig;
-using device::ServoLoop;
-using device::SimulatedDevice;
 using device::TickRecord;
 using device::Vec3;
 using testing::kProbeRadius;
-using testing::Options;
+using testing::Rig;
 using testing::RunTicks;
-using testing::StartServer;
-
-/// A session, a simulated hand on `script` and the servo loop between them.
-struct Rig {
-  std::unique_ptr<server::HapticServer> server = StartServer("127.0.0.1:0");
-  std::unique_ptr<Session> session;
-  std::unique_ptr<SimulatedDevice> device;
-  std::unique_ptr<ServoLoop> loop;
-
-  void Connect(const device::ScriptParams& script, ServoConfig config = {}) {
-    session = std::make_unique<Session>(Options(server->port()));
-    session->Connect();
-    device = std::make_unique<SimulatedDevice>(script, &device::SteadyClock::Instance());
-    device->Open();
-    config.X_PA = session->X_PA();
-    loop = std::make_unique<ServoLoop>(device.get(), config);
-    session->Start(loop.get());
-  }
-  ~Rig() {
-    if (session) session->Stop();
-    server->Shutdown();
-  }
-};
 
 TEST(DeviceE2e, ThinPlateForceNeverFlipsInside) {
   // A 4 mm plate centred on z = 0 (thinner than the sphere probe's 2 cm

@@ -1,6 +1,7 @@
 // Shared pieces of the device-session tests (tests/client): a hapticpd
 // server in-process on 127.0.0.1 (TCP), Session options for it, hand
 // scripts relative to a 0.1 x 0.1 x 0.05 (half extents) box at the origin,
+// the server, Session, simulated hand and ServoLoop wired together (Rig),
 // and a real-time 1 kHz ticker for a ServoLoop driven by the test thread.
 #pragma once
 
@@ -70,6 +71,33 @@ inline device::ScriptParams Script(device::HandScript script, double height, dou
   p.travel = travel;
   return p;
 }
+
+/// A server on 127.0.0.1 (ephemeral port) and, once connected, a Session to
+/// it, a simulated hand on a script and the servo loop between them. Ends
+/// by stopping the session and shutting the server down (if still there).
+struct Rig {
+  std::unique_ptr<server::HapticServer> server = StartServer("127.0.0.1:0");
+  std::unique_ptr<client::Session> session;
+  std::unique_ptr<device::SimulatedDevice> device;
+  std::unique_ptr<device::ServoLoop> loop;
+
+  /// Connects a Session to `port` (0: the server's own), opens a simulated
+  /// hand on `script` on the steady clock and starts the servo loop with
+  /// `config` (its X_PA taken from the session) under the session.
+  void Connect(const device::ScriptParams& script, device::ServoConfig config = {}, int port = 0) {
+    session = std::make_unique<client::Session>(Options(port != 0 ? port : server->port()));
+    session->Connect();
+    device = std::make_unique<device::SimulatedDevice>(script, &device::SteadyClock::Instance());
+    device->Open();
+    config.X_PA = session->X_PA();
+    loop = std::make_unique<device::ServoLoop>(device.get(), config);
+    session->Start(loop.get());
+  }
+  ~Rig() {
+    if (session) session->Stop();
+    if (server) server->Shutdown();
+  }
+};
 
 /// Ticks `loop` at 1 kHz on the steady clock for `ticks` ticks (or until
 /// `each` returns false).

@@ -29,7 +29,6 @@ using device::IntermediateRep;
 using device::Pose;
 using device::ServoConfig;
 using device::ServoLoop;
-using device::SimulatedDevice;
 using device::TickRecord;
 using device::Vec3;
 using testing::MakePose;
@@ -39,6 +38,7 @@ using testing::AddBox;
 using testing::kBoxTop;
 using testing::kProbeRadius;
 using testing::Options;
+using testing::Rig;
 using testing::RunTicks;
 using testing::Script;
 using testing::StartServer;
@@ -113,20 +113,13 @@ TEST(Session, ConnectFailsWithTheServersReason) {
 }
 
 TEST(Session, PressingIntoABodyPushesOutMoreWithDepth) {
-  auto server = StartServer("127.0.0.1:0");
-  AddBox(*server);
-  Session session(Options(server->port()));
-  session.Connect();
+  Rig rig;
+  AddBox(*rig.server);
+  rig.Connect(Script(device::HandScript::kPress, kProbeRadius + 0.005, 2.0));
+  Session& session = *rig.session;
+  ServoLoop& loop = *rig.loop;
   // The sphere's centre of mass is its mesh origin.
   EXPECT_TRUE(session.X_PA().t.norm() < 1e-9);
-
-  SimulatedDevice dev(Script(device::HandScript::kPress, kProbeRadius + 0.005, 2.0),
-                      &device::SteadyClock::Instance());
-  dev.Open();
-  ServoConfig config;
-  config.X_PA = session.X_PA();
-  ServoLoop loop(&dev, config);
-  session.Start(&loop);
 
   struct Sample {
     double depth;  // of the handle's sphere into the box (m)
@@ -174,27 +167,21 @@ TEST(Session, PressingIntoABodyPushesOutMoreWithDepth) {
   ASSERT_GT(nd, 5);
   EXPECT_GT(deep / nd, 1.5 * (shallow / ns) + 0.2)
       << "shallow " << shallow / ns << " deep " << deep / nd;
-  server->Shutdown();
 }
 
 TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
-  auto server = StartServer("127.0.0.1:0");
-  const int port = server->port();
-  AddBox(*server);
-  Session session(Options(port));
-  session.Connect();
-  // The hand holds the sphere 6 mm into the box: a steady push out.
-  SimulatedDevice dev(Script(device::HandScript::kHold, kProbeRadius - 0.006, 100),
-                      &device::SteadyClock::Instance());
-  dev.Open();
+  Rig rig;
+  const int port = rig.server->port();
+  AddBox(*rig.server);
   ServoConfig config;
-  config.X_PA = session.X_PA();
   // Engage at once although the hand starts in contact (this test is about
   // losing the server, not the start-up safety).
   config.startup.quiet_force = 1e3;
   config.startup.quiet_torque = 1e3;
-  ServoLoop loop(&dev, config);
-  session.Start(&loop);
+  // The hand holds the sphere 6 mm into the box: a steady push out.
+  rig.Connect(Script(device::HandScript::kHold, kProbeRadius - 0.006, 100), config);
+  Session& session = *rig.session;
+  ServoLoop& loop = *rig.loop;
   testing::ScopedExpectLogs expect_logs;  // the disconnect warning
 
   double f_before = 0;
@@ -206,7 +193,7 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
   ASSERT_TRUE(session.connected());
 
   // The server goes away while the loop keeps ticking.
-  std::thread stopper([&] { server->Shutdown(); });
+  std::thread stopper([&] { rig.server->Shutdown(); });
   struct Seen {
     bool new_ir;
     double contact;  // |contact wrench on the proxy|
@@ -220,7 +207,7 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
     return true;
   });
   stopper.join();
-  server.reset();
+  rig.server.reset();
   std::size_t last_ir = 0;
   for (std::size_t i = 0; i < seen.size(); ++i) {
     if (seen[i].new_ir) last_ir = i;
@@ -259,8 +246,8 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
   EXPECT_GE(session.stats().disconnects, 1u);
 
   // A server returns on the same port; the session finds it by itself.
-  auto again = StartServer("127.0.0.1:" + std::to_string(port));
-  AddBox(*again);
+  rig.server = StartServer("127.0.0.1:" + std::to_string(port));
+  AddBox(*rig.server);
   const std::uint64_t updates_before = session.stats().updates;
   bool reconnected = false;
   bool contact_again = false;
@@ -294,28 +281,21 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
   EXPECT_LE(max_gain_step, config.period_s / config.startup.ramp_time_s + 1e-12);
   EXPECT_LT(max_dforce, 0.1 * f_before);
   EXPECT_TRUE(WaitUntil([&] { return session.connected(); }, std::chrono::seconds(5)));
-  session.Stop();
-  again->Shutdown();
+  session.Stop();  // while the disconnect warnings are still expected
 }
 
 TEST(Session, StopIsPromptWhileTheServerIsAway) {
-  auto server = StartServer("127.0.0.1:0");
-  Session session(Options(server->port()));
-  session.Connect();
-  SimulatedDevice dev(Script(device::HandScript::kHold, 0.05, 1), &device::SteadyClock::Instance());
-  dev.Open();
-  ServoConfig config;
-  ServoLoop loop(&dev, config);
-  session.Start(&loop);
-  RunTicks(loop, 100, nullptr);
+  Rig rig;
+  rig.Connect(Script(device::HandScript::kHold, 0.05, 1));
+  RunTicks(*rig.loop, 100, nullptr);
   testing::ScopedExpectLogs expect_logs;  // the disconnect warning
-  server->Shutdown();
-  server.reset();
-  RunTicks(loop, 200, nullptr);
+  rig.server->Shutdown();
+  rig.server.reset();
+  RunTicks(*rig.loop, 200, nullptr);
   const auto t0 = std::chrono::steady_clock::now();
-  session.Stop();
+  rig.session->Stop();
   EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(5));
-  EXPECT_FALSE(session.connected());
+  EXPECT_FALSE(rig.session->connected());
 }
 
 }  // namespace

@@ -21,6 +21,7 @@
 #include "pd/shapes.h"
 #include "tests/alloc_counter.h"
 #include "tests/oracles/fcl_oracle.h"
+#include "tests/pd/pd_query_runs.h"
 #include "tests/pd/pd_test_support.h"
 #include "tests/pd/random_poses.h"
 #include "tests/test_util.h"
@@ -217,11 +218,9 @@ std::vector<PairCase> AllCases() {
 TEST(PdgRandom, EveryAnswerIsAVerifiedContactNoDeeperThanPdt) {
   std::mt19937_64 rng(testing::TestSeed());
   const int count = testing::TestCount(25);
-  for (PairCase& c : AllCases()) {
-    SCOPED_TRACE(c.name);
-    const ModelPtr A = MakeModel(std::move(c.a));
-    const ModelPtr B = MakeModel(std::move(c.b));
-    const FclModel fa(A->mesh()), fb(B->mesh());
+  ForEachPair(AllCases(), [&](const ProbeAndScene& ps, const PairCase& c) {
+    const GeometryModel& A = *ps.A;
+    const GeometryModel& B = *ps.B;
     PdgQueryData data;
     PdQueryData pdt_data;
     PenetrationResult r, pdt;
@@ -229,17 +228,17 @@ TEST(PdgRandom, EveryAnswerIsAVerifiedContactNoDeeperThanPdt) {
     double ratio_sum = 0;
     for (int i = 0; i < count; ++i) {
       const Pose X_WB = Pose::FromQuaternion(RandomRotation(rng), Vec3(0.1, -0.2, 0.3));
-      const Pose X_WA = X_WB * NearSurfacePose(*A, *B, rng, c.spread);
-      ComputePdg(*A, X_WA, *B, X_WB, ColdRequest(), &data, &r);
-      ComputePdt(*A, X_WA, *B, X_WB, ColdRequest(), &pdt_data, &pdt);
+      const Pose X_WA = X_WB * NearSurfacePose(A, B, rng, c.spread);
+      ComputePdg(A, X_WA, B, X_WB, ColdRequest(), &data, &r);
+      ComputePdt(A, X_WA, B, X_WB, ColdRequest(), &pdt_data, &pdt);
       if (r.status == PdStatus::kSeparated) {
         EXPECT_EQ(pdt.status, PdStatus::kSeparated);
-        EXPECT_FALSE(FclCollide(fa, X_WA, fb, X_WB));
+        EXPECT_FALSE(FclCollide(ps.fa, X_WA, ps.fb, X_WB));
         continue;
       }
       ++penetrating;
       ASSERT_NE(pdt.status, PdStatus::kFailed) << pdt.failure;
-      ExpectVerifiedPdg(*A, X_WA, X_WB, fa, fb, r, pdt.depth);
+      ExpectVerifiedPdg(A, X_WA, X_WB, ps.fa, ps.fb, r, pdt.depth);
       rotated += r.rotation_angle > 1e-6;
       ratio_sum += r.depth / pdt.depth;
     }
@@ -247,27 +246,19 @@ TEST(PdgRandom, EveryAnswerIsAVerifiedContactNoDeeperThanPdt) {
     std::cout << "[ PDg/PDt ] " << c.name << ": " << penetrating << " penetrating, " << rotated
               << " with rotation, mean depth ratio " << ratio_sum / std::max(penetrating, 1)
               << "\n";
-  }
+  });
 }
 
 TEST(PdgRandom, SharedBunnyAnswersAreVerifiedContacts) {
   HAPTICPD_REQUIRE_MODEL(path, "stanford-bunny.obj");
-  const ModelPtr B = MakeModel(LoadMesh(path.string()));
-  const ModelPtr A = MakeModel(shapes::Stick());
-  const FclModel fa(A->mesh()), fb(B->mesh());
-  std::mt19937_64 rng(testing::TestSeed());
-  PdgQueryData data;
+  const ProbeAndScene ps(MakeModel(shapes::Stick()), MakeModel(LoadMesh(path.string())));
   PdQueryData pdt_data;
-  PenetrationResult r, pdt;
-  int penetrating = 0;
-  for (int i = 0; i < testing::TestCount(12); ++i) {
-    const Pose X_WA = NearSurfacePose(*A, *B, rng, 0.003);
-    ComputePdg(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &data, &r);
-    if (r.status == PdStatus::kSeparated) continue;
-    ++penetrating;
-    ComputePdt(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &pdt_data, &pdt);
-    ExpectVerifiedPdg(*A, X_WA, Pose::Identity(), fa, fb, r, pdt.depth);
-  }
+  PenetrationResult pdt;
+  const int penetrating = PenetratingNearSurface<PdgQuery>(
+      ps, 0.003, testing::TestCount(12), [&](const Pose& X_WA, const PenetrationResult& r) {
+        ComputePdt(*ps.A, X_WA, *ps.B, Pose::Identity(), ColdRequest(), &pdt_data, &pdt);
+        ExpectVerifiedPdg(*ps.A, X_WA, Pose::Identity(), ps.fa, ps.fb, r, pdt.depth);
+      });
   EXPECT_GT(penetrating, 3);
 }
 
@@ -627,35 +618,23 @@ TEST(PdgHardCases, SeparatedAndFailedResultsAreClean) {
 TEST(PdgMetamorphic, CommonRigidTransformMovesTheAnswer) {
   const ModelPtr A = MakeModel(shapes::Spoon());
   const ModelPtr B = MakeModel(shapes::Cup());
-  std::mt19937_64 rng(testing::TestSeed() + 7);
-  PdgQueryData d1, d2;
-  PenetrationResult r1, r2;
-  int checked = 0, identical = 0;
-  const int count = testing::TestCount(12);
-  for (int i = 0; i < count; ++i) {
-    const Pose X_WA = NearSurfacePose(*A, *B, rng, 0.004);
-    const Pose G = Pose::FromQuaternion(RandomRotation(rng), Vec3(0.3, -1.2, 2.0));
-    ComputePdg(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &d1, &r1);
-    ComputePdg(*A, G * X_WA, *B, G, ColdRequest(), &d2, &r2);
-    if (r1.status == PdStatus::kSeparated) {
-      EXPECT_EQ(r2.status, PdStatus::kSeparated);
-      continue;
-    }
-    ++checked;
-    // Both runs see the same relative pose up to rounding; a knife-edge tie
-    // of the cold start can still pick another local optimum (see the PDt
-    // metamorphic test), so most, not all, must agree exactly.
-    const bool same =
-        std::abs(r2.depth - r1.depth) <= 1e-6 * r1.depth + 1e-9 &&
-        (r2.translation_W - G.R * r1.translation_W).norm() <= 1e-5 * r1.depth + 1e-9 &&
-        std::abs(r2.rotation_angle - r1.rotation_angle) <= 1e-5;
-    identical += same;
-    if (!same) {
-      EXPECT_NEAR(r2.depth, r1.depth, 0.03 * r1.depth);
-    }
-  }
-  EXPECT_GT(checked, 3);
-  EXPECT_GE(identical, checked * 3 / 4);
+  const TransformRunCounts n = CommonRigidTransformRun<PdgQuery>(
+      *A, *B, testing::TestSeed() + 7, testing::TestCount(12),
+      [](const PenetrationResult& r1, const PenetrationResult& r2, const Pose& G) {
+        // Both runs see the same relative pose up to rounding; a knife-edge
+        // tie of the cold start can still pick another local optimum (see
+        // the PDt metamorphic test), so most, not all, must agree exactly.
+        const bool same =
+            std::abs(r2.depth - r1.depth) <= 1e-6 * r1.depth + 1e-9 &&
+            (r2.translation_W - G.R * r1.translation_W).norm() <= 1e-5 * r1.depth + 1e-9 &&
+            std::abs(r2.rotation_angle - r1.rotation_angle) <= 1e-5;
+        if (!same) {
+          EXPECT_NEAR(r2.depth, r1.depth, 0.03 * r1.depth);
+        }
+        return same;
+      });
+  EXPECT_GT(n.checked, 3);
+  EXPECT_GE(n.identical, n.checked * 3 / 4);
 }
 
 // --------------------------------------------------------------------------
@@ -729,20 +708,15 @@ TEST(PdgAllocation, NoHeapAllocationAfterWarmUp) {
   if (!testing::CountAllocations::Available()) {
     GTEST_SKIP() << "allocation counting is off under sanitizers";
   }
-  const ModelPtr A = MakeModel(shapes::Spoon());
-  const ModelPtr B = MakeModel(shapes::Cup());
-  PdgQueryData data;
-  PenetrationRequest req;
-  PenetrationResult r;
-  std::vector<Pose> poses;
-  std::mt19937_64 rng(testing::TestSeed());
-  const Pose X0 = NearSurfacePose(*A, *B, rng, 0.0);
-  for (int k = 0; k < 40; ++k) {
-    const Mat3 R = Eigen::AngleAxisd(0.002 * k, Vec3::UnitX()).toRotationMatrix() * X0.R;
-    poses.push_back(Pose{R, X0.t + Vec3(0, 0, -0.0001 * k)});
-  }
-  const std::size_t allocations = AllocationsAfterWarmUp(
-      poses, [&](const Pose& X) { ComputePdg(*A, X, *B, Pose::Identity(), req, &data, &r); });
+  // Pressed down 0.1 mm and turned 2 mrad a frame.
+  const std::size_t allocations = SpoonInCupAllocations<PdgQuery>([](const Pose& X0) {
+    std::vector<Pose> poses;
+    for (int k = 0; k < 40; ++k) {
+      const Mat3 R = Eigen::AngleAxisd(0.002 * k, Vec3::UnitX()).toRotationMatrix() * X0.R;
+      poses.push_back(Pose{R, X0.t + Vec3(0, 0, -0.0001 * k)});
+    }
+    return poses;
+  });
   EXPECT_EQ(allocations, 0u);
 }
 

@@ -15,6 +15,7 @@
 #include "tests/alloc_counter.h"
 #include "tests/oracles/bullet_oracle.h"
 #include "tests/oracles/fcl_oracle.h"
+#include "tests/pd/pd_query_runs.h"
 #include "tests/pd/pd_test_support.h"
 #include "tests/pd/random_poses.h"
 #include "tests/test_util.h"
@@ -135,19 +136,15 @@ TEST(PdtConvex, SwappingProbeAndSceneNegatesTheVector) {
 TEST(PdtNonConvex, EveryAnswerIsAVerifiedContact) {
   std::mt19937_64 rng(testing::TestSeed());
   const int count = testing::TestCount(25);
-  for (NonConvexCase& c : NonConvexCases()) {
-    SCOPED_TRACE(c.name);
-    const ModelPtr A = MakeModel(std::move(c.a));
-    const ModelPtr B = MakeModel(std::move(c.b));
-    const FclModel fa(A->mesh()), fb(B->mesh());
+  ForEachPair(NonConvexCases(), [&](const ProbeAndScene& ps, const NonConvexCase& c) {
     PdQueryData data;
     PenetrationResult r;
     int penetrating = 0;
     for (int i = 0; i < count; ++i) {
-      const Pose X_WA = NearSurfacePose(*A, *B, rng, c.spread);
-      ComputePdt(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &data, &r);
+      const Pose X_WA = NearSurfacePose(*ps.A, *ps.B, rng, c.spread);
+      ComputePdt(*ps.A, X_WA, *ps.B, Pose::Identity(), ColdRequest(), &data, &r);
       if (r.status == PdStatus::kSeparated) {
-        EXPECT_FALSE(FclCollide(fa, X_WA, fb, Pose::Identity()));
+        EXPECT_FALSE(FclCollide(ps.fa, X_WA, ps.fb, Pose::Identity()));
         continue;
       }
       ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
@@ -155,30 +152,21 @@ TEST(PdtNonConvex, EveryAnswerIsAVerifiedContact) {
       EXPECT_TRUE(r.translation_W.allFinite());
       EXPECT_GE(r.iterations, 1);
       EXPECT_FALSE(r.features.empty());
-      ExpectRealContact(fa, fb, Pose::Identity(), r);
+      ExpectRealContact(ps.fa, ps.fb, Pose::Identity(), r);
       ExpectConsistent(X_WA, r);
     }
     EXPECT_GT(penetrating, count / 4);
-  }
+  });
 }
 
 TEST(PdtNonConvex, SharedBunnyAnswersAreVerifiedContacts) {
   HAPTICPD_REQUIRE_MODEL(path, "stanford-bunny.obj");
-  const ModelPtr B = MakeModel(LoadMesh(path.string()));
-  const ModelPtr A = MakeModel(shapes::Stick());
-  const FclModel fa(A->mesh()), fb(B->mesh());
-  std::mt19937_64 rng(testing::TestSeed());
-  PdQueryData data;
-  PenetrationResult r;
-  int penetrating = 0;
-  for (int i = 0; i < testing::TestCount(15); ++i) {
-    const Pose X_WA = NearSurfacePose(*A, *B, rng, 0.003);
-    ComputePdt(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &data, &r);
-    if (r.status == PdStatus::kSeparated) continue;
-    ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
-    ++penetrating;
-    ExpectRealContact(fa, fb, Pose::Identity(), r);
-  }
+  const ProbeAndScene ps(MakeModel(shapes::Stick()), MakeModel(LoadMesh(path.string())));
+  const int penetrating = PenetratingNearSurface<PdtQuery>(
+      ps, 0.003, testing::TestCount(15), [&](const Pose&, const PenetrationResult& r) {
+        ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
+        ExpectRealContact(ps.fa, ps.fb, Pose::Identity(), r);
+      });
   EXPECT_GT(penetrating, 3);
 }
 
@@ -224,39 +212,28 @@ TEST(PdtNonConvex, MedianWithinOnePercentOfSamplingBoundAlongACoherentTrajectory
 // Metamorphic
 
 TEST(PdtMetamorphic, CommonRigidTransformRotatesTheAnswer) {
-  const ModelPtr A = MakeModel(shapes::Spoon());
-  const ModelPtr B = MakeModel(shapes::Cup());
-  std::mt19937_64 rng(testing::TestSeed() + 7);
-  PdQueryData d1, d2;
-  PenetrationResult r1, r2;
-  const FclModel fa(A->mesh()), fb(B->mesh());
-  int checked = 0, identical = 0;
-  const int count = testing::TestCount(16);
-  for (int i = 0; i < count; ++i) {
-    const Pose X_WA = NearSurfacePose(*A, *B, rng, 0.004);
-    const Pose G = Pose::FromQuaternion(RandomRotation(rng), Vec3(0.3, -1.2, 2.0));
-    ComputePdt(*A, X_WA, *B, Pose::Identity(), ColdRequest(), &d1, &r1);
-    ComputePdt(*A, G * X_WA, *B, G, ColdRequest(), &d2, &r2);
-    if (r1.status == PdStatus::kSeparated) {
-      EXPECT_EQ(r2.status, PdStatus::kSeparated);
-      continue;
-    }
-    ++checked;
-    // PDt is computed in B's frame, so both runs see the same relative pose
-    // up to the rounding of X_BA. On non-convex pairs a cold start can still
-    // fall to a different local optimum on a knife edge (a near-tie between
-    // start directions); then both answers must be verified contacts of
-    // nearly the same depth (seen: up to 1.3% apart over seeds 1-10).
-    const bool same = std::abs(r2.depth - r1.depth) <= 1e-6 * r1.depth + 1e-9 &&
-                      (r2.translation_W - G.R * r1.translation_W).norm() <= 1e-5 * r1.depth + 1e-9;
-    identical += same;
-    if (!same) {
-      EXPECT_NEAR(r2.depth, r1.depth, 0.03 * r1.depth);
-      ExpectRealContact(fa, fb, G, r2);
-    }
-  }
-  EXPECT_GT(checked, 3);
-  EXPECT_GE(identical, checked * 3 / 4) << "answers should usually move with the transform exactly";
+  const ProbeAndScene ps(MakeModel(shapes::Spoon()), MakeModel(shapes::Cup()));
+  const TransformRunCounts n = CommonRigidTransformRun<PdtQuery>(
+      *ps.A, *ps.B, testing::TestSeed() + 7, testing::TestCount(16),
+      [&](const PenetrationResult& r1, const PenetrationResult& r2, const Pose& G) {
+        // PDt is computed in B's frame, so both runs see the same relative
+        // pose up to the rounding of X_BA. On non-convex pairs a cold start
+        // can still fall to a different local optimum on a knife edge (a
+        // near-tie between start directions); then both answers must be
+        // verified contacts of nearly the same depth (seen: up to 1.3% apart
+        // over seeds 1-10).
+        const bool same =
+            std::abs(r2.depth - r1.depth) <= 1e-6 * r1.depth + 1e-9 &&
+            (r2.translation_W - G.R * r1.translation_W).norm() <= 1e-5 * r1.depth + 1e-9;
+        if (!same) {
+          EXPECT_NEAR(r2.depth, r1.depth, 0.03 * r1.depth);
+          ExpectRealContact(ps.fa, ps.fb, G, r2);
+        }
+        return same;
+      });
+  EXPECT_GT(n.checked, 3);
+  EXPECT_GE(n.identical, n.checked * 3 / 4)
+      << "answers should usually move with the transform exactly";
 }
 
 // --------------------------------------------------------------------------
@@ -411,19 +388,12 @@ TEST(PdtAllocation, NoHeapAllocationAfterWarmUp) {
   if (!testing::CountAllocations::Available()) {
     GTEST_SKIP() << "allocation counting is off under sanitizers";
   }
-  const ModelPtr A = MakeModel(shapes::Spoon());
-  const ModelPtr B = MakeModel(shapes::Cup());
-  PdQueryData data;
-  PenetrationRequest req;
-  PenetrationResult r;
-  std::vector<Pose> poses;
-  std::mt19937_64 rng(testing::TestSeed());
-  const Pose X0 = NearSurfacePose(*A, *B, rng, 0.0);
-  for (int k = 0; k < 60; ++k) {
-    poses.push_back(Pose{X0.R, X0.t + Vec3(0, 0, -0.0001 * k)});
-  }
-  const std::size_t allocations = AllocationsAfterWarmUp(
-      poses, [&](const Pose& X) { ComputePdt(*A, X, *B, Pose::Identity(), req, &data, &r); });
+  // Pressed straight down, 0.1 mm a frame.
+  const std::size_t allocations = SpoonInCupAllocations<PdtQuery>([](const Pose& X0) {
+    std::vector<Pose> poses;
+    for (int k = 0; k < 60; ++k) poses.push_back(Pose{X0.R, X0.t + Vec3(0, 0, -0.0001 * k)});
+    return poses;
+  });
   EXPECT_EQ(allocations, 0u);
 }
 

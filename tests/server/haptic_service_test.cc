@@ -15,11 +15,8 @@ constexpr double kBoxTop = 0.05;       // box:0.05 -> top face at z = 0.05
 constexpr double kProbeRadius = 0.01;  // sphere:0.01,2
 
 TEST_P(HapticServiceTest, ScriptedPosesIntoABodyGetOneAnswerEachPushingOut) {
-  ServerHarness h(GetParam());
-  auto scenes = h.Scenes();
-  ASSERT_TRUE(AddShape(*scenes, "default", "box:0.05,0.05,0.05", "floor", MakePose(0, 0, 0)).ok());
-  auto haptics = h.Haptics();
-  Session s(*haptics);
+  FloorHarness h(GetParam(), "box:0.05,0.05,0.05");
+  Session s(*h.haptics);
   ASSERT_TRUE(s.Open(Session::DefaultHello()).ok());
   EXPECT_EQ(s.welcome().protocol_version(), 1u);
   EXPECT_FALSE(s.welcome().session_id().empty());
@@ -73,20 +70,15 @@ TEST_P(HapticServiceTest, ScriptedPosesIntoABodyGetOneAnswerEachPushingOut) {
     EXPECT_GT(u->compute_time_us(), 0.0);
   }
   EXPECT_GE(penetrating, 10);
-  s.CloseWrites();
-  EXPECT_FALSE(s.Next().has_value());
-  EXPECT_TRUE(s.Finish().ok());
+  s.ExpectCleanEnd();
 }
 
 TEST_P(HapticServiceTest, PdgSessionPushesOutWithTheFullAnswerPose) {
   // A sphere probe pressed into a box, tilted: PDg answers with a target
   // pose (translation and rotation) whose translation pushes out of the top
   // face, never deeper than PDt's straight push, and a force pushing up.
-  ServerHarness h(GetParam());
-  auto scenes = h.Scenes();
-  ASSERT_TRUE(AddShape(*scenes, "default", "box:0.05,0.05,0.05", "floor", MakePose(0, 0, 0)).ok());
-  auto haptics = h.Haptics();
-  Session s(*haptics);
+  FloorHarness h(GetParam(), "box:0.05,0.05,0.05");
+  Session s(*h.haptics);
   auto hello = Session::DefaultHello();
   hello.set_mode(v1::PD_MODE_PDG);
   ASSERT_TRUE(s.Open(hello).ok());
@@ -118,17 +110,12 @@ TEST_P(HapticServiceTest, PdgSessionPushesOutWithTheFullAnswerPose) {
                 std::isfinite(u->torque().z()));
   }
   EXPECT_GE(penetrating, 5);
-  s.CloseWrites();
-  EXPECT_FALSE(s.Next().has_value());
-  EXPECT_TRUE(s.Finish().ok());
+  s.ExpectCleanEnd();
 }
 
 TEST_P(HapticServiceTest, ModeNoneEchoesWithoutPd) {
-  ServerHarness h(GetParam());
-  auto scenes = h.Scenes();
-  ASSERT_TRUE(AddShape(*scenes, "default", "box", "floor", MakePose(0, 0, 0)).ok());
-  auto haptics = h.Haptics();
-  Session s(*haptics);
+  FloorHarness h(GetParam(), "box");
+  Session s(*h.haptics);
   ASSERT_TRUE(s.Open(Session::DefaultHello("default", v1::PD_MODE_NONE)).ok());
   for (std::uint64_t seq = 1; seq <= 20; ++seq) {
     ASSERT_TRUE(s.Send(seq, MakePose(0, 0, 0)));  // deep inside the box: no PD anyway
@@ -138,17 +125,12 @@ TEST_P(HapticServiceTest, ModeNoneEchoesWithoutPd) {
     EXPECT_EQ(u->status(), v1::CONTACT_STATUS_NONE);
     EXPECT_EQ(u->rows_size(), 0);
   }
-  s.CloseWrites();
-  EXPECT_FALSE(s.Next());
-  EXPECT_TRUE(s.Finish().ok());
+  s.ExpectCleanEnd();
 }
 
 TEST_P(HapticServiceTest, BurstOfPosesIsAnsweredNewestFirstNeverQueued) {
-  ServerHarness h(GetParam());
-  auto scenes = h.Scenes();
-  ASSERT_TRUE(AddShape(*scenes, "default", "box", "floor", MakePose(0, 0, 0)).ok());
-  auto haptics = h.Haptics();
-  Session s(*haptics);
+  FloorHarness h(GetParam(), "box");
+  Session s(*h.haptics);
   ASSERT_TRUE(s.Open(Session::DefaultHello()).ok());
   constexpr int kPoses = 300;
   for (int k = 1; k <= kPoses; ++k) {
@@ -180,18 +162,13 @@ TEST_P(HapticServiceTest, StaleSequenceNumbersAreIgnored) {
   ASSERT_TRUE(s.Send(5, MakePose(0, 0, 0)));  // older: ignored
   ASSERT_TRUE(s.Send(11, MakePose(0, 0, 0)));
   EXPECT_EQ(s.Next()->sequence(), 11u);
-  s.CloseWrites();
-  EXPECT_FALSE(s.Next());
-  EXPECT_TRUE(s.Finish().ok());
+  s.ExpectCleanEnd();
 }
 
 TEST_P(HapticServiceTest, ProbeFromASceneBodyIgnoresItself) {
-  ServerHarness h(GetParam());
-  auto scenes = h.Scenes();
-  ASSERT_TRUE(AddShape(*scenes, "default", "box:0.05,0.05,0.05", "floor", MakePose(0, 0, 0)).ok());
-  ASSERT_TRUE(AddShape(*scenes, "default", "sphere:0.01,2", "tool", MakePose(0, 0, 0.055)).ok());
-  auto haptics = h.Haptics();
-  Session s(*haptics);
+  FloorHarness h(GetParam(), "box:0.05,0.05,0.05");
+  ASSERT_TRUE(AddShape(*h.scenes, "default", "sphere:0.01,2", "tool", MakePose(0, 0, 0.055)).ok());
+  Session s(*h.haptics);
   v1::Hello hello = Session::DefaultHello();
   hello.set_probe_body_id("tool");
   ASSERT_TRUE(s.Open(hello).ok());
@@ -205,11 +182,8 @@ TEST_P(HapticServiceTest, ProbeFromASceneBodyIgnoresItself) {
 }
 
 TEST_P(HapticServiceTest, ProbeMaterialCombinesInSeries) {
-  ServerHarness h(GetParam());
-  auto scenes = h.Scenes();
-  ASSERT_TRUE(AddShape(*scenes, "default", "box:0.05,0.05,0.05", "floor", MakePose(0, 0, 0)).ok());
-  auto haptics = h.Haptics();
-  Session s(*haptics);
+  FloorHarness h(GetParam(), "box:0.05,0.05,0.05");
+  Session s(*h.haptics);
   v1::Hello hello = Session::DefaultHello();
   hello.mutable_material()->set_stiffness(1000);  // with the floor's 1000: 500 N/m
   ASSERT_TRUE(s.Open(hello).ok());
@@ -228,10 +202,8 @@ struct HelloCase {
 };
 
 TEST_P(HapticServiceTest, InvalidHellosAreRejectedNamingTheField) {
-  ServerHarness h(GetParam());
-  auto scenes = h.Scenes();
-  ASSERT_TRUE(AddShape(*scenes, "default", "box", "floor", MakePose(0, 0, 0)).ok());
-  const auto before = GetScene(*scenes, "default");
+  FloorHarness h(GetParam(), "box");
+  const auto before = GetScene(*h.scenes, "default");
   std::vector<HelloCase> cases;
   auto base = Session::DefaultHello();
   {
@@ -287,15 +259,14 @@ TEST_P(HapticServiceTest, InvalidHellosAreRejectedNamingTheField) {
     x.set_max_rate_hz(-5);
     cases.push_back({"rate", x, grpc::StatusCode::INVALID_ARGUMENT, "hello.max_rate_hz"});
   }
-  auto haptics = h.Haptics();
   for (const auto& c : cases) {
     SCOPED_TRACE(c.name);
-    Session s(*haptics);
+    Session s(*h.haptics);
     const grpc::Status st = s.Open(c.hello);
     EXPECT_EQ(st.error_code(), c.code) << st.error_message();
     EXPECT_NE(st.error_message().find(c.field), std::string::npos) << st.error_message();
   }
-  EXPECT_EQ(GetScene(*scenes, "default").revision(), before.revision());
+  EXPECT_EQ(GetScene(*h.scenes, "default").revision(), before.revision());
   ASSERT_TRUE(WaitUntil([&] { return h.server().counts().sessions == 0; }));
 }
 
@@ -366,25 +337,13 @@ TEST_P(HapticServiceTest, SessionLimit) {
 TEST_P(HapticServiceTest, DeletingTheSceneEndsItsSessions) {
   ServerHarness h(GetParam());
   auto scenes = h.Scenes();
-  v1::CreateSceneRequest create;
-  create.set_scene_id("temp");
-  v1::SceneSummary sum;
-  {
-    auto ctx = Ctx();
-    ASSERT_TRUE(scenes->CreateScene(ctx.get(), create, &sum).ok());
-  }
+  ASSERT_TRUE(CreateScene(*scenes, "temp").ok());
   auto haptics = h.Haptics();
   Session s(*haptics);
   ASSERT_TRUE(s.Open(Session::DefaultHello("temp")).ok());
   ASSERT_TRUE(s.Send(1, MakePose(0, 0, 0)));
   ASSERT_TRUE(s.Next());
-  v1::DeleteSceneRequest del;
-  del.set_scene_id("temp");
-  v1::DeleteSceneResponse dr;
-  {
-    auto ctx = Ctx();
-    ASSERT_TRUE(scenes->DeleteScene(ctx.get(), del, &dr).ok());
-  }
+  ASSERT_TRUE(DeleteScene(*scenes, "temp").ok());
   while (s.Next()) {
   }
   const auto st = s.Finish();

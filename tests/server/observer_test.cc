@@ -103,24 +103,9 @@ TEST_P(ObserverTest, SnapshotThenChangesAndPoses) {
   EXPECT_TRUE(obs.first_was_snapshot());
   ASSERT_TRUE(AddShape(*scenes, "default", "box", "b", MakePose(1, 0, 0)).ok());
   ASSERT_TRUE(WaitUntil([&] { return obs.saw_added("b"); }));
-  v1::MoveBodyRequest mv;
-  mv.set_scene_id("default");
-  mv.set_body_id("a");
-  *mv.mutable_pose() = MakePose(0.25, 0, 0);
-  v1::MoveBodyResponse mr;
-  {
-    auto ctx = Ctx();
-    ASSERT_TRUE(scenes->MoveBody(ctx.get(), mv, &mr).ok());
-  }
+  ASSERT_TRUE(MoveBody(*scenes, "default", "a", MakePose(0.25, 0, 0)).ok());
   ASSERT_TRUE(WaitUntil([&] { return obs.last_pose_x("a") == 0.25; }));
-  v1::RemoveBodyRequest rm;
-  rm.set_scene_id("default");
-  rm.set_body_id("b");
-  v1::RemoveBodyResponse rr;
-  {
-    auto ctx = Ctx();
-    ASSERT_TRUE(scenes->RemoveBody(ctx.get(), rm, &rr).ok());
-  }
+  ASSERT_TRUE(RemoveBody(*scenes, "default", "b").ok());
   ASSERT_TRUE(WaitUntil([&] { return obs.saw_removed("b"); }));
   // A device session's probe shows up in pose frames.
   auto haptics = h.Haptics();
@@ -156,14 +141,7 @@ TEST_P(ObserverTest, InjectedBodyAppearsInTheNextPdAnswerAndInObservers) {
   EXPECT_GT(u->force().z(), 0);
   EXPECT_TRUE(WaitUntil([&] { return obs.saw_added("wall"); }));
   // And removal: gone from the next answer.
-  v1::RemoveBodyRequest rm;
-  rm.set_scene_id("default");
-  rm.set_body_id("wall");
-  v1::RemoveBodyResponse rr;
-  {
-    auto ctx = Ctx();
-    ASSERT_TRUE(scenes->RemoveBody(ctx.get(), rm, &rr).ok());
-  }
+  ASSERT_TRUE(RemoveBody(*scenes, "default", "wall").ok());
   ASSERT_TRUE(s.Send(3, at));
   u = s.Next();
   ASSERT_TRUE(u);
@@ -207,21 +185,13 @@ TEST_P(ObserverTest, SlowObserverDropsFramesWithoutSlowingOthers) {
   EXPECT_TRUE(WaitUntil([&] { return fast.pose_frames() >= 5; }));
   EXPECT_TRUE(
       WaitUntil([&] { return h.server().counts().observer_frames_dropped > dropped_before; }));
-  s.CloseWrites();
-  EXPECT_FALSE(s.Next());
-  EXPECT_TRUE(s.Finish().ok());
+  s.ExpectCleanEnd();
 }
 
 TEST_P(ObserverTest, EachSceneHasItsOwnPublisherReapedAfterTheSceneIsDeleted) {
   ServerHarness h(GetParam());
   auto scenes = h.Scenes();
-  {
-    v1::CreateSceneRequest req;
-    req.set_scene_id("other");
-    v1::SceneSummary resp;
-    auto ctx = Ctx();
-    ASSERT_TRUE(scenes->CreateScene(ctx.get(), req, &resp).ok());
-  }
+  ASSERT_TRUE(CreateScene(*scenes, "other").ok());
   EXPECT_EQ(h.server().counts().publishers, 0);  // started by the first observer
   Observer a(*scenes, "default", 100);
   Observer b(*scenes, "other", 100);
@@ -231,13 +201,7 @@ TEST_P(ObserverTest, EachSceneHasItsOwnPublisherReapedAfterTheSceneIsDeleted) {
   ASSERT_TRUE(AddShape(*scenes, "other", "box", "x", MakePose(0, 0, 0)).ok());
   ASSERT_TRUE(WaitUntil([&] { return b.saw_added("x"); }));
   EXPECT_FALSE(a.saw_added("x"));
-  {
-    v1::DeleteSceneRequest del;
-    del.set_scene_id("other");
-    v1::DeleteSceneResponse dr;
-    auto ctx = Ctx();
-    ASSERT_TRUE(scenes->DeleteScene(ctx.get(), del, &dr).ok());
-  }
+  ASSERT_TRUE(DeleteScene(*scenes, "other").ok());
   ASSERT_TRUE(WaitUntil([&] { return h.server().counts().observers == 1; }));
   b.Stop(false);
   EXPECT_EQ(b.status().error_code(), grpc::StatusCode::NOT_FOUND);

@@ -76,34 +76,17 @@ TEST_P(SceneServiceTest, SceneLifecycle) {
   ASSERT_EQ(scene.bodies_size(), 3);
   EXPECT_EQ(scene.revision(), 3u);
 
-  v1::MoveBodyRequest move;
-  move.set_scene_id("lab");
-  move.set_body_id("body-1");
-  *move.mutable_pose() = MakePose(0.1, 0.2, 0.3, 0, 1, 0, 0);
+  const v1::Pose moved_to = MakePose(0.1, 0.2, 0.3, 0, 1, 0, 0);
   v1::MoveBodyResponse moved;
-  {
-    auto ctx = Ctx();
-    ASSERT_TRUE(stub->MoveBody(ctx.get(), move, &moved).ok());
-  }
+  ASSERT_TRUE(MoveBody(*stub, "lab", "body-1", moved_to, &moved).ok());
   EXPECT_EQ(moved.revision(), 4u);
   scene = GetScene(*stub, "lab");
   EXPECT_DOUBLE_EQ(scene.bodies(1).pose().position().z(), 0.3);
   EXPECT_DOUBLE_EQ(scene.bodies(1).pose().orientation().x(), 1.0);
 
-  move.set_body_id("floor");  // static
-  {
-    auto ctx = Ctx();
-    EXPECT_EQ(stub->MoveBody(ctx.get(), move, &moved).error_code(),
-              grpc::StatusCode::FAILED_PRECONDITION);
-  }
-  v1::RemoveBodyRequest rm;
-  rm.set_scene_id("lab");
-  rm.set_body_id("obj");
-  v1::RemoveBodyResponse removed;
-  {
-    auto ctx = Ctx();
-    ASSERT_TRUE(stub->RemoveBody(ctx.get(), rm, &removed).ok());
-  }
+  EXPECT_EQ(MoveBody(*stub, "lab", "floor", moved_to).error_code(),  // static
+            grpc::StatusCode::FAILED_PRECONDITION);
+  ASSERT_TRUE(RemoveBody(*stub, "lab", "obj").ok());
   EXPECT_EQ(GetScene(*stub, "lab").bodies_size(), 2);
 
   v1::GetSceneRequest with_meshes;
@@ -116,17 +99,8 @@ TEST_P(SceneServiceTest, SceneLifecycle) {
   }
   EXPECT_EQ(full.bodies(0).mesh().triangles_size(), 36);  // the box: 12 triangles
 
-  v1::DeleteSceneRequest del;
-  del.set_scene_id("lab");
-  v1::DeleteSceneResponse dr;
-  {
-    auto ctx = Ctx();
-    ASSERT_TRUE(stub->DeleteScene(ctx.get(), del, &dr).ok());
-  }
-  {
-    auto ctx = Ctx();
-    EXPECT_EQ(stub->DeleteScene(ctx.get(), del, &dr).error_code(), grpc::StatusCode::NOT_FOUND);
-  }
+  ASSERT_TRUE(DeleteScene(*stub, "lab").ok());
+  EXPECT_EQ(DeleteScene(*stub, "lab").error_code(), grpc::StatusCode::NOT_FOUND);
   v1::GetSceneRequest get;
   get.set_scene_id("lab");
   {
@@ -342,13 +316,7 @@ TEST_P(SceneServiceTest, InvalidMoveRemoveAndSceneRequests) {
   };
   for (const auto& c : moves) {
     SCOPED_TRACE(c.field + " " + c.body);
-    v1::MoveBodyRequest req;
-    req.set_scene_id("default");
-    req.set_body_id(c.body);
-    *req.mutable_pose() = c.pose;
-    v1::MoveBodyResponse resp;
-    auto ctx = Ctx();
-    const auto s = stub->MoveBody(ctx.get(), req, &resp);
+    const auto s = MoveBody(*stub, "default", c.body, c.pose);
     EXPECT_EQ(s.error_code(), c.code) << s.error_message();
     EXPECT_NE(s.error_message().find(c.field), std::string::npos) << s.error_message();
   }
@@ -371,20 +339,9 @@ TEST_P(SceneServiceTest, InvalidMoveRemoveAndSceneRequests) {
     auto ctx = Ctx();
     EXPECT_EQ(stub->MoveBody(ctx.get(), req, &resp).error_code(), grpc::StatusCode::NOT_FOUND);
   }
-  {
-    v1::RemoveBodyRequest req;
-    req.set_scene_id("default");
-    req.set_body_id("ghost");
-    v1::RemoveBodyResponse resp;
-    auto ctx = Ctx();
-    EXPECT_EQ(stub->RemoveBody(ctx.get(), req, &resp).error_code(), grpc::StatusCode::NOT_FOUND);
-  }
+  EXPECT_EQ(RemoveBody(*stub, "default", "ghost").error_code(), grpc::StatusCode::NOT_FOUND);
   for (const std::string& id : std::vector<std::string>{"", "has space", std::string(65, 'a')}) {
-    v1::CreateSceneRequest req;
-    req.set_scene_id(id);
-    v1::SceneSummary resp;
-    auto ctx = Ctx();
-    const auto s = stub->CreateScene(ctx.get(), req, &resp);
+    const auto s = CreateScene(*stub, id);
     EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
     EXPECT_NE(s.error_message().find("scene_id"), std::string::npos);
   }
@@ -406,17 +363,8 @@ TEST_P(SceneServiceTest, SceneLimit) {
   opt.limits.max_scenes = 2;
   ServerHarness h(GetParam(), opt);
   auto stub = h.Scenes();
-  v1::CreateSceneRequest req;
-  v1::SceneSummary resp;
-  req.set_scene_id("second");
-  {
-    auto ctx = Ctx();
-    ASSERT_TRUE(stub->CreateScene(ctx.get(), req, &resp).ok());
-  }
-  req.set_scene_id("third");
-  auto ctx = Ctx();
-  EXPECT_EQ(stub->CreateScene(ctx.get(), req, &resp).error_code(),
-            grpc::StatusCode::RESOURCE_EXHAUSTED);
+  ASSERT_TRUE(CreateScene(*stub, "second").ok());
+  EXPECT_EQ(CreateScene(*stub, "third").error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
 }
 
 INSTANTIATE_TEST_SUITE_P(Transports, SceneServiceTest,

@@ -70,6 +70,16 @@ class ServerHarness {
   std::unique_ptr<server::HapticServer> server_;
 };
 
+/// A harness whose default scene holds a static body "floor" of
+/// `floor_shape` at the origin, with a scene and a haptic stub.
+class FloorHarness : public ServerHarness {
+ public:
+  FloorHarness(Transport t, const std::string& floor_shape);
+
+  std::unique_ptr<v1::SceneService::Stub> scenes = Scenes();
+  std::unique_ptr<v1::HapticService::Stub> haptics = Haptics();
+};
+
 /// A client context with the test deadline and, if given, a token.
 inline std::unique_ptr<grpc::ClientContext> Ctx(const std::string& token = "") {
   auto ctx = std::make_unique<grpc::ClientContext>();
@@ -135,6 +145,54 @@ inline v1::Scene GetScene(v1::SceneService::Stub& stub, const std::string& scene
   return out;
 }
 
+/// CreateScene for `scene`; the summary into `out` when given.
+inline grpc::Status CreateScene(v1::SceneService::Stub& stub, const std::string& scene,
+                                v1::SceneSummary* out = nullptr) {
+  v1::CreateSceneRequest req;
+  req.set_scene_id(scene);
+  v1::SceneSummary summary;
+  auto ctx = Ctx();
+  return stub.CreateScene(ctx.get(), req, out ? out : &summary);
+}
+
+/// DeleteScene for `scene`.
+inline grpc::Status DeleteScene(v1::SceneService::Stub& stub, const std::string& scene) {
+  v1::DeleteSceneRequest req;
+  req.set_scene_id(scene);
+  v1::DeleteSceneResponse resp;
+  auto ctx = Ctx();
+  return stub.DeleteScene(ctx.get(), req, &resp);
+}
+
+/// MoveBody of `body` in `scene` to `pose`; the response into `out` when given.
+inline grpc::Status MoveBody(v1::SceneService::Stub& stub, const std::string& scene,
+                             const std::string& body, const v1::Pose& pose,
+                             v1::MoveBodyResponse* out = nullptr) {
+  v1::MoveBodyRequest req;
+  req.set_scene_id(scene);
+  req.set_body_id(body);
+  *req.mutable_pose() = pose;
+  v1::MoveBodyResponse resp;
+  auto ctx = Ctx();
+  return stub.MoveBody(ctx.get(), req, out ? out : &resp);
+}
+
+/// RemoveBody of `body` from `scene`.
+inline grpc::Status RemoveBody(v1::SceneService::Stub& stub, const std::string& scene,
+                               const std::string& body) {
+  v1::RemoveBodyRequest req;
+  req.set_scene_id(scene);
+  req.set_body_id(body);
+  v1::RemoveBodyResponse resp;
+  auto ctx = Ctx();
+  return stub.RemoveBody(ctx.get(), req, &resp);
+}
+
+inline FloorHarness::FloorHarness(Transport t, const std::string& floor_shape) : ServerHarness(t) {
+  const grpc::Status s = AddShape(*scenes, "default", floor_shape, "floor", MakePose(0, 0, 0));
+  EXPECT_TRUE(s.ok()) << "adding the floor: " << s.error_message();
+}
+
 /// One device session over the synchronous streaming API.
 class Session {
  public:
@@ -198,6 +256,15 @@ class Session {
   void Cancel() { ctx_->TryCancel(); }
 
   const v1::Welcome& welcome() const { return welcome_; }
+
+  /// Closes the writes and expects the server to end the stream cleanly:
+  /// no update left, status OK.
+  void ExpectCleanEnd() {
+    CloseWrites();
+    EXPECT_FALSE(Next().has_value()) << "an update after the writes were closed";
+    const grpc::Status st = Finish();
+    EXPECT_TRUE(st.ok()) << st.error_message();
+  }
 
  private:
   std::unique_ptr<grpc::ClientContext> ctx_;
