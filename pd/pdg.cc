@@ -309,6 +309,27 @@ bool Colliding(PdgContext& c, const Pose& X) {
 // its centre of mass reaches X_to's (exact translational CCD). On a hit
 // returns the contact pose (touching) with its feature pairs in
 // data.ccd.features; otherwise *X_end is the free pose reached.
+enum class Sweep : std::uint8_t { kStartColliding, kHit, kMiss };
+
+// SweepTranslation from a pose not known to be free: the sweep decides
+// whether X_from collides in its own traversal (kStartColliding), which
+// costs much less than a separate Collide before it.
+Sweep SweepTranslationFrom(PdgContext& c, const Pose& X_from, const Pose& X_to, Pose* X_contact,
+                           Pose* X_end) {
+  const Vec3& p_AC = c.A.mass().p_MC;
+  const Vec3 d = X_to * p_AC - X_from * p_AC;
+  CcdRequest req;
+  req.feature_tolerance = c.eps;
+  req.check_start = true;
+  if (TranslationalCcd(c.A, X_from, d, c.B, c.X_WB, req, &c.data.ccd, &c.data.scratch)) {
+    *X_contact = c.data.ccd.X_WA_contact;
+    return Sweep::kHit;
+  }
+  if (c.data.ccd.start_colliding) return Sweep::kStartColliding;
+  *X_end = Pose{X_from.R, X_from.t + d};
+  return Sweep::kMiss;
+}
+
 bool SweepTranslation(PdgContext& c, const Pose& X_from, const Pose& X_to, Pose* X_contact,
                       Pose* X_end) {
   const Vec3& p_AC = c.A.mass().p_MC;
@@ -369,6 +390,15 @@ bool OutProject(PdgContext& c, const Pose& X_free, Pose* X_contact) {
   Pose X_end;
   if (SweepTranslation(c, X_free, c.X_WA, X_contact, &X_end)) return true;
   return SweepRotation(c, X_end, X_contact);
+}
+
+// OutProject from a pose not known to be free: kStartColliding when it
+// collides (nothing else done), else whether a contact was reached.
+Sweep OutProjectFrom(PdgContext& c, const Pose& X, Pose* X_contact) {
+  Pose X_end;
+  const Sweep s = SweepTranslationFrom(c, X, c.X_WA, X_contact, &X_end);
+  if (s != Sweep::kMiss) return s;
+  return SweepRotation(c, X_end, X_contact) ? Sweep::kHit : Sweep::kMiss;
 }
 
 // The rigid motion from the query pose to X, extended to parameter s
@@ -455,7 +485,8 @@ bool CoherentStart(PdgContext& c, Pose* X_contact) {
   for (int k = 0; k < tries; ++k) {
     const PdgQueryData::CoherenceEntry& e = d.coherence[order[k]];
     if (!e.contact) {
-      if (!Colliding(c, e.X_BA_query)) return OutProject(c, e.X_BA_query, X_contact);
+      const Sweep s = OutProjectFrom(c, e.X_BA_query, X_contact);
+      if (s != Sweep::kStartColliding) return s == Sweep::kHit;
       continue;
     }
     // The cached answer's motion applied to the current query pose (follows
@@ -468,7 +499,8 @@ bool CoherentStart(PdgContext& c, Pose* X_contact) {
       if (!(motion > 0)) continue;
       for (double push : {2.0, 20.0}) {
         const Pose X_f = InterpolateRigid(X0, X1, c.A.mass().p_MC, 1 + push * c.eps / motion);
-        if (!Colliding(c, X_f)) return OutProject(c, X_f, X_contact);
+        const Sweep s = OutProjectFrom(c, X_f, X_contact);
+        if (s != Sweep::kStartColliding) return s == Sweep::kHit;
       }
     }
   }
@@ -515,8 +547,7 @@ bool Polish(PdgContext& c, Best* best, std::vector<FeaturePair>* features) {
     if (round == kRounds || closes_one) return true;
     const Pose X_in = AlongAnswer(c, best->X, 1 - kPull);
     Pose X_new;
-    if (Colliding(c, X_in) || !OutProject(c, X_in, &X_new) ||
-        !(Sigma(c, Z(c, X_new)) < best->sigma)) {
+    if (OutProjectFrom(c, X_in, &X_new) != Sweep::kHit || !(Sigma(c, Z(c, X_new)) < best->sigma)) {
       return true;
     }
     Accept(c, X_new, best);
@@ -637,9 +668,10 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     const Pose X_star = At(c, z_star);
     Pose X_new;
     bool found = false;
-    if (!Colliding(c, X_star)) {
-      // Free: out-project again towards the query pose.
-      found = OutProject(c, X_star, &X_new);
+    // Free: out-project again towards the query pose.
+    const Sweep from_star = OutProjectFrom(c, X_star, &X_new);
+    if (from_star != Sweep::kStartColliding) {
+      found = from_star == Sweep::kHit;
     } else {
       // In collision (the contact space curves away): keep z*'s rotation and
       // back off by translation along the mean contact normal until free,
@@ -654,22 +686,28 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
           const double back = scale * std::sqrt(best.sigma) + 2 * eps;
           const Pose X_back{X_star.R, X_star.t + n_avg * back};
           Pose X_end;
-          if (!Colliding(c, X_back)) {
-            found = SweepTranslation(c, X_back, X_star, &X_new, &X_end);
+          const Sweep s = SweepTranslationFrom(c, X_back, X_star, &X_new, &X_end);
+          if (s != Sweep::kStartColliding) {
+            found = s == Sweep::kHit;
             break;
           }
         }
       }
       if (!found) {
-        Pose X_back = best.X;
-        if (have_normal) X_back.t += n_avg * (2 * eps);
-        if (!have_normal || Colliding(c, X_back)) {
-          const double motion = MotionLength(c, X_WA, best.X);
-          X_back = AlongAnswer(c, best.X, 1 + 2 * eps / std::max(motion, 1e-300));
-        }
+        // Backed off along the mean normal, else along the answer's motion.
         Pose X_end;
-        found = !Colliding(c, X_back) && (SweepTranslation(c, X_back, X_star, &X_new, &X_end) ||
-                                          OutProject(c, X_end, &X_new));
+        Sweep s = Sweep::kStartColliding;
+        if (have_normal) {
+          Pose X_back = best.X;
+          X_back.t += n_avg * (2 * eps);
+          s = SweepTranslationFrom(c, X_back, X_star, &X_new, &X_end);
+        }
+        if (s == Sweep::kStartColliding) {
+          const double motion = MotionLength(c, X_WA, best.X);
+          const Pose X_back = AlongAnswer(c, best.X, 1 + 2 * eps / std::max(motion, 1e-300));
+          s = SweepTranslationFrom(c, X_back, X_star, &X_new, &X_end);
+        }
+        found = s == Sweep::kHit || (s == Sweep::kMiss && OutProject(c, X_end, &X_new));
       }
     }
     if (!found || Sigma(c, Z(c, X_new)) >= best.sigma * (1 - request.improvement_tolerance)) {
