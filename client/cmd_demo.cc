@@ -210,8 +210,9 @@ void WriteSvg(const std::filesystem::path& path, const std::vector<Run>& runs) {
     p.x_max = tmax;
     p.y_min = 0;
     p.y_max = 1.1 * fmax;
-    svg::Series& force = p.series.emplace_back();
-    svg::Series& torque = p.series.emplace_back();
+    p.series.resize(2);  // both first: a reference into the vector survives no growth
+    svg::Series& force = p.series[0];
+    svg::Series& torque = p.series[1];
     torque.color = "#c0392b";
     for (const auto& s : r.samples) {
       force.x.push_back(s.t_s);
