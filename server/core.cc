@@ -60,10 +60,11 @@ void Core::Register(StoppableCall* call) {
 }
 
 void Core::Unregister(StoppableCall* call) {
-  {
-    std::lock_guard lock(calls_mu_);
-    calls_.erase(call);
-  }
+  // Notify under the lock: once WaitNoCalls sees no call left, Shutdown may
+  // return and the Core (this condition variable) be destroyed, so the last
+  // reactor's OnDone must be done with calls_cv_ before the waiter can wake.
+  std::lock_guard lock(calls_mu_);
+  calls_.erase(call);
   calls_cv_.notify_all();
 }
 

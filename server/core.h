@@ -18,7 +18,39 @@
 #include "server/server.h"
 #include "server/stats.h"
 
+#if defined(__SANITIZE_THREAD__)
+#include <sanitizer/tsan_interface.h>
+#endif
+
 namespace hapticpd::server::internal {
+
+// ThreadSanitizer cannot see gRPC's own synchronisation (the distribution's
+// gRPC is not built with -fsanitize=thread), so it would report every hand-over
+// of a reactor between gRPC's threads. These state what the callback API
+// guarantees: a reaction (On*) runs after the Start*/Finish call or reaction
+// that led to it, and OnDone after all of them. GrpcHandOff(this) goes before
+// each Start*/Finish (and at the end of each reaction, see Reaction),
+// GrpcTakeOver(this) at the start of each reaction. No-ops without TSan.
+#if defined(__SANITIZE_THREAD__)
+inline void GrpcHandOff(const void* reactor) { __tsan_release(const_cast<void*>(reactor)); }
+inline void GrpcTakeOver(const void* reactor) { __tsan_acquire(const_cast<void*>(reactor)); }
+#else
+inline void GrpcHandOff(const void*) {}
+inline void GrpcTakeOver(const void*) {}
+#endif
+
+/// GrpcTakeOver on entry to a reaction, GrpcHandOff when it returns (not in
+/// OnDone, which deletes the reactor: call GrpcTakeOver there).
+class Reaction {
+ public:
+  explicit Reaction(const void* reactor) : reactor_(reactor) { GrpcTakeOver(reactor_); }
+  ~Reaction() { GrpcHandOff(reactor_); }
+  Reaction(const Reaction&) = delete;
+  Reaction& operator=(const Reaction&) = delete;
+
+ private:
+  const void* reactor_;
+};
 
 /// The server's logger ("server"), sharing the default logger's sinks.
 std::shared_ptr<spdlog::logger> Log();

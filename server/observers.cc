@@ -136,6 +136,7 @@ WatchReactor::WatchReactor(Core* core, ScenePtr scene, const v1::WatchRequest& r
       include_meshes_(request.include_meshes()) {
   core_->Register(this);  // core_->observers was counted by SceneServiceImpl::Watch
   ++scene_->observers;
+  GrpcHandOff(this);
   core_->publishers->Add(this);
 }
 
@@ -148,7 +149,10 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
         grpc::Status(grpc::StatusCode::NOT_FOUND, "scene '" + scene_->id() + "' was deleted"),
         false, &call);
     lock.unlock();
-    if (call) Finish(finish_status_);
+    if (call) {
+      GrpcHandOff(this);
+      Finish(finish_status_);
+    }
     return now + std::chrono::hours(1);
   }
   const SnapshotPtr snap = scene_->snapshot();
@@ -204,6 +208,7 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
   in_flight_ = true;
   core_->stats.observer_frames_sent.fetch_add(1, std::memory_order_relaxed);
   // Under mu_: a forced Finish (cancellation) cannot slip in between.
+  GrpcHandOff(this);
   StartWrite(&msg_);
   return next_pose_due_;
 }
@@ -227,10 +232,14 @@ void WatchReactor::Stop(const grpc::Status& status) {
     std::lock_guard lock(mu_);
     FinishLocked(status, false, &call);
   }
-  if (call) Finish(finish_status_);
+  if (call) {
+    GrpcHandOff(this);
+    Finish(finish_status_);
+  }
 }
 
 void WatchReactor::OnWriteDone(bool ok) {
+  const Reaction reaction(this);
   bool call = false;
   {
     std::lock_guard lock(mu_);
@@ -242,6 +251,7 @@ void WatchReactor::OnWriteDone(bool ok) {
     }
   }
   if (call) {
+    GrpcHandOff(this);
     Finish(finish_status_);
   } else {
     scene_->changes().Notify();  // a structural change may be waiting for this observer
@@ -249,15 +259,20 @@ void WatchReactor::OnWriteDone(bool ok) {
 }
 
 void WatchReactor::OnCancel() {
+  const Reaction reaction(this);
   bool call = false;
   {
     std::lock_guard lock(mu_);
     FinishLocked(grpc::Status::CANCELLED, true, &call);
   }
-  if (call) Finish(finish_status_);
+  if (call) {
+    GrpcHandOff(this);
+    Finish(finish_status_);
+  }
 }
 
 void WatchReactor::OnDone() {
+  GrpcTakeOver(this);
   core_->publishers->Remove(this);
   --scene_->observers;
   --core_->observers;

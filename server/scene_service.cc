@@ -25,6 +25,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
       FinishOnce(core_->Unavailable());
       return;
     }
+    GrpcHandOff(this);
     StartRead(&req_);
   }
 
@@ -36,6 +37,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
 
  private:
   void OnReadDone(bool ok) override {
+    const Reaction reaction(this);
     std::lock_guard lock(mu_);
     if (finished_) return;
     if (!ok) {
@@ -47,6 +49,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
       FinishOnceLocked(s);
       return;
     }
+    GrpcHandOff(this);
     StartRead(&req_);
   }
 
@@ -155,6 +158,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
     }
     // Outside the lock and the last touch of `this`: OnDone may run (and
     // delete this reactor) on another thread as soon as Finish is called.
+    GrpcHandOff(this);
     Finish(s);
   }
 
@@ -163,6 +167,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
   void FinishOnceLocked(const grpc::Status& s) {
     if (finished_) return;
     finished_ = true;
+    GrpcHandOff(this);
     Finish(s);
   }
   void FinishOnce(const grpc::Status& s) {
@@ -173,10 +178,12 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
     }
     // Outside the lock and the last touch of `this`: OnDone may run (and
     // delete this reactor) on another thread as soon as Finish is called.
+    GrpcHandOff(this);
     Finish(s);
   }
 
   void OnDone() override {
+    GrpcTakeOver(this);
     core_->Unregister(this);
     delete this;
   }
@@ -363,8 +370,14 @@ grpc::ServerUnaryReactor* SceneServiceImpl::RemoveBody(grpc::CallbackServerConte
 grpc::ServerWriteReactor<v1::SceneEvent>* SceneServiceImpl::Watch(grpc::CallbackServerContext* ctx,
                                                                   const v1::WatchRequest* req) {
   struct Reject final : grpc::ServerWriteReactor<v1::SceneEvent> {
-    explicit Reject(const grpc::Status& s) { Finish(s); }
-    void OnDone() override { delete this; }
+    explicit Reject(const grpc::Status& s) {
+      GrpcHandOff(this);
+      Finish(s);
+    }
+    void OnDone() override {
+      GrpcTakeOver(this);
+      delete this;
+    }
   };
   if (core_->shutting_down.load()) return new Reject(core_->Unavailable());
   ScenePtr scene;

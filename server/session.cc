@@ -43,6 +43,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       counted_ = true;
     }
     worker_ = std::thread([this] { Run(); });
+    GrpcHandOff(this);
     StartRead(&req_);
   }
 
@@ -67,6 +68,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   // ---- gRPC reactions -------------------------------------------------------
 
   void OnReadDone(bool ok) override {
+    const Reaction reaction(this);
     if (!ok) {
       {
         std::lock_guard lock(mb_mu_);
@@ -118,10 +120,12 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       return;
     }
     mb_cv_.notify_all();
+    GrpcHandOff(this);
     StartRead(&req_);
   }
 
   void OnWriteDone(bool ok) override {
+    const Reaction reaction(this);
     std::lock_guard lock(wr_mu_);
     in_flight_ = false;
     if (ok && sent_update_) core_->stats.updates_sent.fetch_add(1, std::memory_order_relaxed);
@@ -140,6 +144,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   }
 
   void OnCancel() override {
+    const Reaction reaction(this);
     {
       std::lock_guard lock(wr_mu_);
       FinishLocked(grpc::Status::CANCELLED, true);
@@ -148,6 +153,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   }
 
   void OnDone() override {
+    GrpcTakeOver(this);
     Stop(grpc::Status::CANCELLED);
     // gRPC runs OnDone on its executor for non-inline reactors, never inside
     // the worker's Finish; the check only guards against joining itself.
@@ -172,6 +178,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     if (writing_.has_update()) writing_.mutable_update()->set_server_send_time_ns(NowNs());
     sent_update_ = writing_.has_update();
     in_flight_ = true;
+    GrpcHandOff(this);
     StartWrite(&writing_);
   }
 
@@ -200,6 +207,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     }
     if (!in_flight_ || force) {
       finish_called_ = true;
+      GrpcHandOff(this);
       Finish(finish_status_);
     }
   }
