@@ -264,10 +264,7 @@ void RunDemo(const DemoOptions& o) {
 
   const auto level = spdlog::get_level();
   spdlog::set_level(spdlog::level::warn);  // the in-process server's info lines
-  server::ServerOptions so;
-  so.listen = "127.0.0.1:0";
-  so.status_interval_s = 0;
-  so.shutdown_grace_s = 0.5;
+  server::ServerOptions so = server::ServerOptions::InProcess();
   if (file) so.scene_files = {o.scene_file};  // loaded as `serve --scene` loads it
   server::HapticServer server(so);
   try {

@@ -305,22 +305,22 @@ bool Colliding(PdgContext& c, const Pose& X) {
   return Collide(c.A, X, c.B, c.X_WB, req, &c.data.collision, &c.data.scratch);
 }
 
-// Sweeps A by translation from the free pose X_from, at its rotation, until
-// its centre of mass reaches X_to's (exact translational CCD). On a hit
-// returns the contact pose (touching) with its feature pairs in
-// data.ccd.features; otherwise *X_end is the free pose reached.
 enum class Sweep : std::uint8_t { kStartColliding, kHit, kMiss };
 
-// SweepTranslation from a pose not known to be free: the sweep decides
-// whether X_from collides in its own traversal (kStartColliding), which
-// costs much less than a separate Collide before it.
+// Sweeps A by translation from X_from, at its rotation, until its centre of
+// mass reaches X_to's (exact translational CCD). On a hit returns the
+// contact pose (touching) with its feature pairs in data.ccd.features;
+// otherwise *X_end is the free pose reached. With `check_start` (X_from not
+// known to be free) the sweep decides whether X_from collides in its own
+// traversal (kStartColliding), which costs much less than a separate Collide
+// before it.
 Sweep SweepTranslationFrom(PdgContext& c, const Pose& X_from, const Pose& X_to, Pose* X_contact,
-                           Pose* X_end) {
+                           Pose* X_end, bool check_start = true) {
   const Vec3& p_AC = c.A.mass().p_MC;
   const Vec3 d = X_to * p_AC - X_from * p_AC;
   CcdRequest req;
   req.feature_tolerance = c.eps;
-  req.check_start = true;
+  req.check_start = check_start;
   if (TranslationalCcd(c.A, X_from, d, c.B, c.X_WB, req, &c.data.ccd, &c.data.scratch)) {
     *X_contact = c.data.ccd.X_WA_contact;
     return Sweep::kHit;
@@ -330,18 +330,10 @@ Sweep SweepTranslationFrom(PdgContext& c, const Pose& X_from, const Pose& X_to, 
   return Sweep::kMiss;
 }
 
+// The same from a pose known to be free.
 bool SweepTranslation(PdgContext& c, const Pose& X_from, const Pose& X_to, Pose* X_contact,
                       Pose* X_end) {
-  const Vec3& p_AC = c.A.mass().p_MC;
-  const Vec3 d = X_to * p_AC - X_from * p_AC;
-  CcdRequest req;
-  req.feature_tolerance = c.eps;
-  if (TranslationalCcd(c.A, X_from, d, c.B, c.X_WB, req, &c.data.ccd, &c.data.scratch)) {
-    *X_contact = c.data.ccd.X_WA_contact;
-    return true;
-  }
-  *X_end = Pose{X_from.R, X_from.t + d};
-  return false;
+  return SweepTranslationFrom(c, X_from, X_to, X_contact, X_end, false) == Sweep::kHit;
 }
 
 // Rotates A about its centre of mass from the free pose X_from towards the

@@ -23,13 +23,14 @@ inline TriB TriangleOfA(const Mesh& A, const Pose& X_BA, Index f) {
   return {{X_BA * V[t[0]], X_BA * V[t[1]], X_BA * V[t[2]]}};
 }
 
-// A's triangle (and its face normal) in B's frame, recomputed only when the
-// triangle changes: the leaf loops pair each A triangle with several B
-// triangles in a row, and re-transforming it for each pair was half the
-// arithmetic of a cheap leaf test.
-class ATriangleCache {
+// A's triangle (and its face normal and box) in B's frame, recomputed only
+// when the triangle changes: the leaf loops pair each A triangle with
+// several B triangles in a row, and re-transforming it for each pair was
+// half the arithmetic of a cheap leaf test. `Source::Make(f, &tri, &normal)`
+// supplies the triangle (CRTP: no virtual call on the hot path).
+template <typename Source>
+class LastATriangle {
  public:
-  ATriangleCache(const Mesh& A, const Pose& X_BA) : A_(A), X_BA_(X_BA) {}
   const TriB& Tri(Index f) {
     Load(f);
     return tri_;
@@ -52,13 +53,10 @@ class ATriangleCache {
   void Load(Index f) {
     if (f == f_) return;
     f_ = f;
-    tri_ = TriangleOfA(A_, X_BA_, f);
-    normal_ = X_BA_.R * A_.face_normals()[f];
+    static_cast<Source*>(this)->Make(f, &tri_, &normal_);
     lo_ = tri_.v[0].cwiseMin(tri_.v[1]).cwiseMin(tri_.v[2]);
     hi_ = tri_.v[0].cwiseMax(tri_.v[1]).cwiseMax(tri_.v[2]);
   }
-  const Mesh& A_;
-  const Pose& X_BA_;
   Index f_ = -1;
   TriB tri_;
   Vec3 normal_ = Vec3::Zero();
@@ -66,12 +64,27 @@ class ATriangleCache {
   Vec3 hi_ = Vec3::Zero();
 };
 
+// The triangles of A transformed by X_BA as they are met.
+class ATriangleCache : public LastATriangle<ATriangleCache> {
+ public:
+  ATriangleCache(const Mesh& A, const Pose& X_BA) : A_(A), X_BA_(X_BA) {}
+
+ private:
+  friend class LastATriangle<ATriangleCache>;
+  void Make(Index f, TriB* tri, Vec3* normal) const {
+    *tri = TriangleOfA(A_, X_BA_, f);
+    *normal = X_BA_.R * A_.face_normals()[f];
+  }
+  const Mesh& A_;
+  const Pose& X_BA_;
+};
+
 // A's BVH boxes and triangles rotated into B's frame, and B's boxes onto
 // A's axes, through the scratch's lazily filled tables: every sweep of a
 // PDt query shares one rotation, so each node and triangle is rotated once
-// per query instead of once per pair test. Triangle accessors mirror
-// ATriangleCache (with the sweep's start translation added).
-class RotationCache {
+// per query instead of once per pair test. Its triangles are A's at the
+// sweep's start (the rotated table plus the start translation).
+class RotationCache : public LastATriangle<RotationCache> {
  public:
   RotationCache(const GeometryModel& A, const GeometryModel& B, const Pose& X_BA,
                 const internal::SweptBoxFrame& swept, QueryScratch* s)
@@ -102,27 +115,9 @@ class RotationCache {
                   [&](internal::RotatedBox* r) { *r = internal::RotateBoxB(swept_, n); });
   }
 
-  const TriB& Tri(Index f) {
-    Load(f);
-    return tri_;
-  }
-  const Vec3& Normal(Index f) {
-    Load(f);
-    return normal_;
-  }
-  const Vec3& Lo(Index f) {
-    Load(f);
-    return lo_;
-  }
-  const Vec3& Hi(Index f) {
-    Load(f);
-    return hi_;
-  }
-
  private:
-  void Load(Index f) {
-    if (f == f_) return;
-    f_ = f;
+  friend class LastATriangle<RotationCache>;
+  void Make(Index f, TriB* tri, Vec3* normal) {
     const QueryScratch::RotatedTriangle& r =
         Cached(f, &s_.rotated_triangles, &s_.rotated_triangle_stamp,
                [&](QueryScratch::RotatedTriangle* o) {
@@ -131,10 +126,8 @@ class RotationCache {
                  for (int k = 0; k < 3; ++k) o->v[k] = s_.rotated_R * V[t[k]];
                  o->n = s_.rotated_R * A_.mesh().face_normals()[f];
                });
-    for (int k = 0; k < 3; ++k) tri_.v[k] = r.v[k] + t_;
-    normal_ = r.n;
-    lo_ = tri_.v[0].cwiseMin(tri_.v[1]).cwiseMin(tri_.v[2]);
-    hi_ = tri_.v[0].cwiseMax(tri_.v[1]).cwiseMax(tri_.v[2]);
+    for (int k = 0; k < 3; ++k) tri->v[k] = r.v[k] + t_;
+    *normal = r.n;
   }
   // Grows a table (and its stamps, as "not computed") to n entries: warm-up
   // only, the tables keep their size across queries.
@@ -160,11 +153,6 @@ class RotationCache {
   const Vec3 t_;
   const internal::SweptBoxFrame& swept_;
   QueryScratch& s_;
-  Index f_ = -1;
-  TriB tri_;
-  Vec3 normal_ = Vec3::Zero();
-  Vec3 lo_ = Vec3::Zero();
-  Vec3 hi_ = Vec3::Zero();
 };
 
 inline TriB TriangleOfB(const Mesh& B, Index f) {

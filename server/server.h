@@ -44,6 +44,16 @@ struct ServerOptions {
   double status_interval_s = 10;
   /// Seconds streams get to finish at shutdown before they are cancelled.
   double shutdown_grace_s = 2;
+
+  /// A server inside another program (the demo, benchmarks): loopback on a
+  /// free port, no periodic status line, a short shutdown grace.
+  static ServerOptions InProcess() {
+    ServerOptions o;
+    o.listen = "127.0.0.1:0";
+    o.status_interval_s = 0;
+    o.shutdown_grace_s = 0.5;
+    return o;
+  }
 };
 
 class HapticServer {

@@ -286,10 +286,7 @@ int main(int argc, char** argv) {
   }
   spdlog::set_level(spdlog::level::warn);
 
-  hapticpd::server::ServerOptions opt;
-  opt.listen = "127.0.0.1:0";
-  opt.status_interval_s = 0;
-  hapticpd::server::HapticServer server(opt);
+  hapticpd::server::HapticServer server(hapticpd::server::ServerOptions::InProcess());
   server.Start();
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(64 << 20);

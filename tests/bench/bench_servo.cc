@@ -210,11 +210,7 @@ v1::Body AddKnot(int port) {
 int RunServer(const Args& a, HandScript script) {
   const auto level = spdlog::get_level();
   spdlog::set_level(spdlog::level::warn);  // the in-process server's info lines
-  server::ServerOptions so;
-  so.listen = "127.0.0.1:0";
-  so.status_interval_s = 0;
-  so.shutdown_grace_s = 0.5;
-  server::HapticServer server(so);
+  server::HapticServer server(server::ServerOptions::InProcess());
   server.Start();
   const int port = server.port();
   const v1::Body knot = AddKnot(port);
