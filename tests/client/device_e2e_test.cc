@@ -175,7 +175,8 @@ TEST(DeviceE2e, StalledUpdateStreamFadesAndRecovers) {
   double worst = 0;  // largest per-tick change over its allowance
   for (std::size_t i = 1; i < seen.size(); ++i) {
     const double dt = 1e-9 * static_cast<double>(seen[i].time_ns - seen[i - 1].time_ns);
-    const double allowed = std::max(0.15, 1.5 * dt / 0.020) * f_before;  // the 20 ms default
+    // 1.5 x the 20 ms default fade (5% per ms).
+    const double allowed = testing::FadeStepAllowance(dt, 0.15, 0.075) * f_before;
     worst = std::max(worst, std::abs(seen[i].force - seen[i - 1].force) / allowed);
   }
   EXPECT_LT(worst, 1.0) << "a force step beyond 15% of the force per on-time tick";

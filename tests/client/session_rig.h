@@ -5,6 +5,7 @@
 // and a real-time 1 kHz ticker for a ServoLoop driven by the test thread.
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <functional>
 #include <memory>
@@ -101,6 +102,15 @@ struct Rig {
 
 /// Ticks `loop` at 1 kHz on the steady clock for `ticks` ticks (or until
 /// `each` returns false).
+/// Largest per-tick change of a fading force allowed in a real-time test,
+/// as a fraction of the force before the fade: `on_time` for a tick that
+/// came on time; the fade runs in real time, so a tick the machine delayed
+/// (a loaded CI runner) may fade in proportion to its lateness, and is
+/// allowed that much more (`per_ms` per millisecond of its period).
+inline double FadeStepAllowance(double dt_s, double on_time, double per_ms) {
+  return std::max(on_time, per_ms * dt_s / 1e-3);
+}
+
 inline void RunTicks(device::ServoLoop& loop, int ticks,
                      const std::function<bool(const device::TickRecord&)>& each) {
   const auto& clock = device::SteadyClock::Instance();
