@@ -58,6 +58,20 @@ struct QueryScratch {
   std::uint64_t rotated_model = 0;    ///< GeometryModel::uid() of A, 0: none
   std::uint64_t rotated_b_model = 0;  ///< and of B
   Mat3 rotated_R = Mat3::Zero();
+
+  /// The last few triangle pairs found crossing (by Collide or a CCD start
+  /// check) for one pair of models. A first-crossing query of the same
+  /// models tests them before traversing: under motion coherence one of
+  /// them usually still crosses (a PDt query's start checks fall at a few
+  /// recurring places: the query pose, the previous answer's contact space),
+  /// and one crossing settles such a query. The answer is the same either
+  /// way; only the work differs.
+  static constexpr int kWitnesses = 4;
+  std::array<std::pair<Index, Index>, kWitnesses> witnesses{};
+  int witness_count = 0;
+  int witness_next = 0;               ///< ring position of the next entry
+  std::uint64_t witness_model_a = 0;  ///< GeometryModel::uid() of A, 0: none
+  std::uint64_t witness_model_b = 0;
 };
 
 struct TrianglePair {
