@@ -12,9 +12,11 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <iterator>
 #include <mutex>
-#include <regex>
 #include <sstream>
+
+#include "pd/mesh_readers.h"
 
 namespace hapticpd::pd {
 namespace {
@@ -34,33 +36,33 @@ class SoupImporter final : public OpenMesh::IO::ImporterT<OmMesh> {
   explicit SoupImporter(OmMesh& m) : ImporterT<OmMesh>(m) {}
 
   OpenMesh::VertexHandle add_vertex(const OpenMesh::Vec3f& p) override {
-    points.emplace_back(p[0], p[1], p[2]);
+    soup.points.emplace_back(p[0], p[1], p[2]);
     return ImporterT<OmMesh>::add_vertex(p);
   }
   OpenMesh::VertexHandle add_vertex(const OpenMesh::Vec3d& p) override {
-    points.emplace_back(p[0], p[1], p[2]);
+    soup.points.emplace_back(p[0], p[1], p[2]);
     return ImporterT<OmMesh>::add_vertex(p);
   }
   OpenMesh::VertexHandle add_vertex() override {
-    points.emplace_back(0.0, 0.0, 0.0);
+    soup.points.emplace_back(0.0, 0.0, 0.0);
     return ImporterT<OmMesh>::add_vertex();
   }
   void set_point(OpenMesh::VertexHandle vh, const OpenMesh::Vec3f& p) override {
-    if (vh.is_valid() && static_cast<std::size_t>(vh.idx()) < points.size()) {
-      points[vh.idx()] = Vec3(p[0], p[1], p[2]);
+    if (vh.is_valid() && static_cast<std::size_t>(vh.idx()) < soup.points.size()) {
+      soup.points[vh.idx()] = Vec3(p[0], p[1], p[2]);
     }
     ImporterT<OmMesh>::set_point(vh, p);
   }
 
   OpenMesh::FaceHandle add_face(const VHandles& idx) override {
-    std::vector<Index> f;
-    f.reserve(idx.size());
     bool valid = idx.size() >= 3;
     for (const auto& vh : idx) {
-      f.push_back(static_cast<Index>(vh.idx()));
-      if (!vh.is_valid() || static_cast<std::size_t>(vh.idx()) >= points.size()) valid = false;
+      soup.corners.push_back(static_cast<Index>(vh.idx()));
+      if (!vh.is_valid() || static_cast<std::size_t>(vh.idx()) >= soup.points.size()) {
+        valid = false;
+      }
     }
-    faces.push_back(std::move(f));
+    soup.EndFace();
     for (std::size_t i = 0; valid && i < idx.size(); ++i) {
       for (std::size_t j = i + 1; j < idx.size(); ++j) valid = valid && idx[i] != idx[j];
     }
@@ -69,8 +71,7 @@ class SoupImporter final : public OpenMesh::IO::ImporterT<OmMesh> {
     return ImporterT<OmMesh>::add_face(idx);
   }
 
-  std::vector<Vec3> points;
-  std::vector<std::vector<Index>> faces;
+  internal::PolygonSoup soup;
 };
 
 // `s` with bytes outside printable ASCII shown as '?', for error messages.
@@ -128,81 +129,6 @@ std::size_t PrescanObj(const std::string& path) {
   return faces;
 }
 
-// OFF: OpenMesh's reader keeps going on short or non-numeric input and then
-// hands out uninitialised indices. Check the header counts, every vertex and
-// every face line first.
-void PrescanOff(const std::string& path) {
-  std::ifstream in(path);
-  std::string line;
-  std::size_t lineno = 0;
-  auto next_line = [&]() -> bool {
-    while (std::getline(in, line)) {
-      ++lineno;
-      const auto hash = line.find('#');
-      if (hash != std::string::npos) line.resize(hash);
-      if (line.find_first_not_of(" \t\r") != std::string::npos) return true;
-    }
-    return false;
-  };
-  auto where = [&]() { return path + ": line " + std::to_string(lineno) + ": "; };
-  if (!next_line()) throw MeshError(path + ": file is empty");
-  std::istringstream header(line);
-  std::string magic;
-  header >> magic;
-  if (magic.find("OFF") == std::string::npos) throw MeshError(where() + "missing OFF header");
-  if (magic != "OFF") {
-    // COFF/NOFF/4OFF/OFF BINARY...: OpenMesh's reader takes their bodies on
-    // trust (element and face-corner counts are reserved up front, so a
-    // hostile file allocates gigabytes); only plain OFF, checked line by
-    // line below, is accepted.
-    throw MeshError(where() + "OFF variant '" + Printable(magic) +
-                    "' is not supported (plain OFF only)");
-  }
-  long nv = -1, nf = -1, ne = -1;
-  // OpenMesh reads the counts from the line after "OFF" only (counts on the
-  // magic line are misread, e.g. as a huge allocation); so do we.
-  if (header >> std::ws, !header.eof()) {
-    throw MeshError(where() + "element counts must be on the line after 'OFF'");
-  }
-  if (!next_line()) throw MeshError(path + ": truncated before the element counts");
-  header = std::istringstream(line);
-  header >> nv;
-  if (!(header >> nf >> ne) || nv < 0 || nf < 0) {
-    throw MeshError(where() + "bad element counts (expected: vertices faces edges)");
-  }
-  for (long v = 0; v < nv; ++v) {
-    if (!next_line()) {
-      throw MeshError(path + ": truncated: header promises " + std::to_string(nv) +
-                      " vertices, file holds " + std::to_string(v));
-    }
-    const char* p = line.c_str();
-    for (int k = 0; k < 3; ++k) {
-      char* end = nullptr;
-      const double x = std::strtod(p, &end);
-      if (end == p) throw MeshError(where() + "vertex has fewer than 3 numeric coordinates");
-      if (!std::isfinite(x)) throw MeshError(where() + "vertex has a non-finite coordinate");
-      p = end;
-    }
-  }
-  for (long f = 0; f < nf; ++f) {
-    if (!next_line()) {
-      throw MeshError(path + ": truncated: header promises " + std::to_string(nf) +
-                      " faces, file holds " + std::to_string(f));
-    }
-    std::istringstream fs(line);
-    long n = 0;
-    if (!(fs >> n) || n < 3) throw MeshError(where() + "face needs at least 3 vertices");
-    for (long k = 0; k < n; ++k) {
-      long idx = -1;
-      if (!(fs >> idx)) throw MeshError(where() + "face has fewer indices than it declares");
-      if (idx < 0 || idx >= nv) {
-        throw MeshError(where() + "face refers to vertex " + std::to_string(idx) +
-                        ", out of range [0, " + std::to_string(nv) + ")");
-      }
-    }
-  }
-}
-
 // STL: a binary file's size is fixed by its triangle count; a mismatch is a
 // truncated or foreign file unless it is ASCII ("solid ... facet").
 void PrescanStl(const std::string& path) {
@@ -225,77 +151,6 @@ void PrescanStl(const std::string& path) {
     return;
   }
   if (!ascii) throw MeshError(path + ": not a valid STL: too short for binary and not ASCII");
-}
-
-// PLY: OpenMesh's reader loops forever (and logs without bound) on a header
-// that never ends, and reserves element counts up front; require the "ply"
-// magic, an end_header line, and counts a file of this size can hold.
-void PrescanPly(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::string line;
-  if (!std::getline(in, line) || line.rfind("ply", 0) != 0) {
-    throw MeshError(path + ": not a valid PLY: missing the 'ply' magic line");
-  }
-  const auto size = std::filesystem::file_size(path);
-  std::size_t lineno = 1;
-  int elements = 0;
-  while (std::getline(in, line)) {
-    ++lineno;
-    if (line == "end_header" || line == "end_header\r") return;
-    std::istringstream words(line);
-    std::string keyword, name;
-    long long count = 0;
-    words >> keyword;
-    // OpenMesh also loops on header lines it does not expect.
-    if (keyword == "format") {
-      std::string version;
-      words >> name >> version;
-      if ((name != "ascii" && name != "binary_little_endian" && name != "binary_big_endian") ||
-          version != "1.0") {
-        throw MeshError(path + ": not a valid PLY: line " + std::to_string(lineno) +
-                        ": expected 'format ascii|binary_little_endian|binary_big_endian 1.0'");
-      }
-      continue;
-    }
-    if (!keyword.empty() && keyword != "element" && keyword != "property" && keyword != "comment" &&
-        keyword != "obj_info") {
-      throw MeshError(path + ": not a valid PLY: line " + std::to_string(lineno) +
-                      ": unknown header keyword '" + Printable(keyword) + "'");
-    }
-    if (keyword == "element") ++elements;
-    if (keyword == "property" && elements == 0) {
-      // OpenMesh's reader crashes (a wild read) on a property before any element.
-      throw MeshError(path + ": not a valid PLY: line " + std::to_string(lineno) +
-                      ": property before any element");
-    }
-    if (keyword == "property") {
-      static const std::regex type(
-          "char|uchar|short|ushort|int|uint|float|double|int8|uint8|int16|uint16|int32|uint32|"
-          "float32|float64");
-      std::string t;
-      words >> t;
-      const bool list = t == "list";
-      std::string t2, t3;
-      if (list) words >> t2 >> t3;
-      words >> name;
-      if (!std::regex_match(list ? t2 : t, type) || (list && !std::regex_match(t3, type)) ||
-          name.empty() || !(words >> std::ws).eof()) {
-        throw MeshError(path + ": not a valid PLY: line " + std::to_string(lineno) +
-                        ": expected 'property TYPE NAME' or 'property list TYPE TYPE NAME'");
-      }
-      continue;
-    }
-    if (keyword == "element" && (!(words >> name >> count) || !(words >> std::ws).eof())) {
-      throw MeshError(path + ": not a valid PLY: line " + std::to_string(lineno) +
-                      ": expected 'element NAME COUNT'");
-    }
-    if (keyword == "element" && (count < 0 || static_cast<unsigned long long>(count) > size)) {
-      throw MeshError(path + ": not a valid PLY: element " + name + " count " +
-                      std::to_string(count) + " is more than a file of " + std::to_string(size) +
-                      " bytes can hold");
-    }
-  }
-  throw MeshError(path + ": not a valid PLY: the header has no end_header line");
 }
 
 std::string Lower(std::string s) {
@@ -499,64 +354,74 @@ Mesh LoadMesh(const std::string& path, const MeshOptions& options) {
   }
   if (fs::file_size(path, ec) == 0) throw MeshError(path + ": file is empty");
 
-  const std::size_t obj_faces = ext == ".obj" ? PrescanObj(path) : 0;
-  if (ext == ".off") PrescanOff(path);
-  if (ext == ".stl") PrescanStl(path);
-  if (ext == ".ply") PrescanPly(path);
-  OmMesh om;
-  SoupImporter importer(om);
-  OpenMesh::IO::Options opt;
-  // OpenMesh prints parse complaints on its own error stream; capture them so
-  // they become part of our error message instead of stray stderr output.
-  // The capture stream is connected once for the process (OpenMesh's
-  // disconnect leaks its wrapper, so no connect/disconnect per load), and
-  // reads are serialised: the stream and OpenMesh's reader registry are
-  // process-wide.
-  static std::mutex io_mutex;
-  static std::ostringstream om_errors;
+  internal::PolygonSoup soup;
   std::string why;
-  bool ok = false;
-  {
-    std::lock_guard<std::mutex> lock(io_mutex);
-    static const bool redirected = [] {
-      ::omerr().connect(om_errors);
-      ::omerr().disconnect(std::cerr);
-      return true;
-    }();
-    (void)redirected;
-    om_errors.str(std::string());
-    om_errors.clear();
-    try {
-      ok = OpenMesh::IO::IOManager().read(path, importer, opt);
-    } catch (const std::exception& e) {
-      om_errors << e.what();
+  std::size_t obj_faces = 0;
+  if (ext == ".off" || ext == ".ply") {
+    // Our own readers (pd/mesh_readers.h): OpenMesh's trust the header counts
+    // and can allocate gigabytes on a body that does not match them.
+    std::ifstream in(path, std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    if (!in && !in.eof()) throw MeshError(path + ": cannot be read");
+    soup = ext == ".off" ? internal::ReadOff(path, bytes) : internal::ReadPly(path, bytes);
+  } else {
+    if (ext == ".obj") obj_faces = PrescanObj(path);
+    if (ext == ".stl") PrescanStl(path);
+    OmMesh om;
+    SoupImporter importer(om);
+    OpenMesh::IO::Options opt;
+    // OpenMesh prints parse complaints on its own error stream; capture them
+    // so they become part of our error message instead of stray stderr
+    // output. The capture stream is connected once for the process
+    // (OpenMesh's disconnect leaks its wrapper, so no connect/disconnect per
+    // load), and reads are serialised: the stream and OpenMesh's reader
+    // registry are process-wide.
+    static std::mutex io_mutex;
+    static std::ostringstream om_errors;
+    bool ok = false;
+    {
+      std::lock_guard<std::mutex> lock(io_mutex);
+      static const bool redirected = [] {
+        ::omerr().connect(om_errors);
+        ::omerr().disconnect(std::cerr);
+        return true;
+      }();
+      (void)redirected;
+      om_errors.str(std::string());
+      om_errors.clear();
+      try {
+        ok = OpenMesh::IO::IOManager().read(path, importer, opt);
+      } catch (const std::exception& e) {
+        om_errors << e.what();
+      }
+      why = om_errors.str();
     }
-    why = om_errors.str();
-  }
-  std::replace(why.begin(), why.end(), '\n', ' ');
-  while (!why.empty() && why.back() == ' ') why.pop_back();
-  if (!ok && importer.faces.empty()) {
-    throw MeshError(path + ": could not be parsed as " + ext.substr(1) +
-                    (why.empty() ? std::string() : " (" + why + ")"));
+    std::replace(why.begin(), why.end(), '\n', ' ');
+    while (!why.empty() && why.back() == ' ') why.pop_back();
+    if (!ok && importer.soup.num_faces() == 0) {
+      throw MeshError(path + ": could not be parsed as " + ext.substr(1) +
+                      (why.empty() ? std::string() : " (" + why + ")"));
+    }
+    soup = std::move(importer.soup);
   }
 
   // Polygons are fan-triangulated; faces with fewer than 3 corners are errors.
   std::vector<Triangle> tris;
-  tris.reserve(importer.faces.size());
-  const auto nv = static_cast<Index>(importer.points.size());
-  for (std::size_t f = 0; f < importer.faces.size(); ++f) {
-    const auto& poly = importer.faces[f];
-    for (Index i : poly) {
-      if (i < 0 || i >= nv) {
+  tris.reserve(soup.num_faces());
+  const auto nv = static_cast<Index>(soup.points.size());
+  for (std::size_t f = 0; f < soup.num_faces(); ++f) {
+    const Index* poly = soup.corners.data() + soup.face_begin(f);
+    const std::size_t n = soup.face_end[f] - soup.face_begin(f);
+    for (std::size_t k = 0; k < n; ++k) {
+      if (poly[k] < 0 || poly[k] >= nv) {
         throw MeshError(path + ": face " + std::to_string(f) + " refers to vertex " +
-                        std::to_string(i) + ", out of range [0, " + std::to_string(nv) + ")");
+                        std::to_string(poly[k]) + ", out of range [0, " + std::to_string(nv) + ")");
       }
     }
-    if (poly.size() < 3) {
+    if (n < 3) {
       throw MeshError(path + ": face " + std::to_string(f) + " has fewer than 3 vertices");
     }
-    for (std::size_t k = 1; k + 1 < poly.size(); ++k)
-      tris.push_back({poly[0], poly[k], poly[k + 1]});
+    for (std::size_t k = 1; k + 1 < n; ++k) tris.push_back({poly[0], poly[k], poly[k + 1]});
   }
   if (tris.empty() && obj_faces > 0) {
     throw MeshError(path + ": no non-degenerate triangles (the reader skipped all " +
@@ -565,9 +430,10 @@ Mesh LoadMesh(const std::string& path, const MeshOptions& options) {
   if (tris.empty()) {
     throw MeshError(path + ": no faces found" + (why.empty() ? std::string() : " (" + why + ")"));
   }
-  Mesh mesh = Mesh::FromArrays(std::move(importer.points), std::move(tris), path, options);
-  if (obj_faces > importer.faces.size()) {
-    mesh.AddDiagnostic(std::to_string(obj_faces - importer.faces.size()) +
+  const std::size_t faces_read = soup.num_faces();
+  Mesh mesh = Mesh::FromArrays(std::move(soup.points), std::move(tris), path, options);
+  if (obj_faces > faces_read) {
+    mesh.AddDiagnostic(std::to_string(obj_faces - faces_read) +
                        " face(s) skipped by the OBJ reader (repeated or invalid vertex indices)");
   }
   return mesh;

@@ -1,6 +1,6 @@
 // The immutable triangle-mesh model every query runs on.
 //
-// A `Mesh` is built once (from a file through OpenMesh, from arrays, or from a
+// A `Mesh` is built once (from a mesh file, from arrays, or from a
 // procedural shape) and then shared read-only, typically as
 // `std::shared_ptr<const Mesh>`. Coordinates are in the mesh's own frame M.
 #pragma once
@@ -139,11 +139,14 @@ class Mesh {
   int dropped_ = 0;
 };
 
-/// Loads OBJ, OFF, STL (ASCII or binary) or PLY through OpenMesh's readers,
-/// keeping the polygon soup as written (polygons are fan-triangulated,
-/// non-manifold faces are kept, not split off). Throws MeshError naming the
+/// Loads OBJ, STL (ASCII or binary) through OpenMesh's readers, and plain OFF
+/// and PLY (ASCII or binary) through our own (pd/mesh_readers.h, memory
+/// O(file size)), keeping the polygon soup as written (polygons are
+/// fan-triangulated, non-manifold faces are kept, not split off). Coordinates
+/// are read in single precision in every format. Throws MeshError naming the
 /// file on a missing or unreadable file, an unknown extension, a parse
-/// failure, or any error of Mesh::FromArrays.
+/// failure (with the line for OBJ, OFF and ASCII PLY), or any error of
+/// Mesh::FromArrays.
 Mesh LoadMesh(const std::string& path, const MeshOptions& options = {});
 
 }  // namespace hapticpd::pd

@@ -363,12 +363,12 @@ TEST_F(BadInputTable, BadMeshFilesUploaded) {
        "chunk: not a valid STL: binary header says 1303066130 triangles (65153306584 bytes) but "
        "the file has 600 bytes, and it is not ASCII STL"},
       {"index_out_of_range.obj", "chunk: face 0 refers to vertex 8, out of range [0, 3)"},
-      {"infinite_vertex.off", "chunk: line 4: vertex has a non-finite coordinate"},
+      {"infinite_vertex.off", "chunk: line 4: vertex 1 has a non-finite coordinate (1e400)"},
       {"nan_vertex.obj", "chunk: line 3: vertex has a non-finite coordinate (v nan 1 0)"},
       {"no_faces.obj", "chunk: no faces found"},
-      {"truncated.off", "chunk: line 5: vertex has fewer than 3 numeric coordinates"},
+      {"truncated.off", "chunk: line 5: vertex 2 has 2 numbers, expected 3"},
       {"truncated.ply",
-       "chunk: could not be parsed as ply (Unexpected end of file while reading.)"},
+       "chunk: truncated after line 12: the header promises 8 vertex elements, the file holds 3"},
       {"truncated.stl",
        "chunk: not a valid STL: binary header says 1000 triangles (50084 bytes) but the file has "
        "184 bytes, and it is not ASCII STL"},
@@ -395,8 +395,9 @@ TEST_F(BadInputTable, BadMeshFilesUploaded) {
 
 TEST_F(BadInputTable, FuzzReproducersUploaded) {
   // Inputs the fuzzers found (tests/fuzz/corpus): before the pre-scans in
-  // pd/mesh.cc they aborted the server (an OpenMesh assert), hung a worker
-  // forever or allocated gigabytes.
+  // pd/mesh.cc and our own OFF/PLY readers (pd/mesh_readers.cc) they aborted
+  // the server (an OpenMesh assert), hung a worker forever or allocated
+  // gigabytes.
   const fs::path dir = fs::path(HAPTICPD_FUZZ_CORPUS_DIR);
   struct Repro {
     std::string file;
@@ -423,6 +424,10 @@ TEST_F(BadInputTable, FuzzReproducersUploaded) {
        "chunk: line 1: OFF variant 'COFF' is not supported (plain OFF only)"},
       {"mesh_off/oom-coff-face-corner-count.off", v1::MESH_FORMAT_OFF,
        "chunk: line 1: OFF variant 'COFF' is not supported (plain OFF only)"},
+      {"mesh_off/oom-off-vertex-line-with-4-numbers.off", v1::MESH_FORMAT_OFF,
+       "chunk: line 5: vertex 2 has 4 numbers, expected 3"},
+      {"mesh_ply/oom-ply-ascii-body-misaligned.ply", v1::MESH_FORMAT_PLY,
+       "chunk: line 14: vertex 4 has 4 values, expected 3"},
       {"mesh_off/oom-unknown-variant-huge-count.off", v1::MESH_FORMAT_OFF,
        "chunk: line 1: OFF variant 'OFF444444444FF?\?\?\?\?' is not supported (plain OFF "
        "only)"},
