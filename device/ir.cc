@@ -17,8 +17,14 @@ Vec6 Delta(const Pose& X_ref, const Pose& X) {
 }  // namespace
 
 void EvaluateIrRaw(const IntermediateRep& ir, const Pose& X_WP, Vec6* W, Mat6* K) {
+  EvaluateIrShifted(ir, X_WP, 0.0, W, K, nullptr);
+}
+
+void EvaluateIrShifted(const IntermediateRep& ir, const Pose& X_WP, double shift, Vec6* W, Mat6* K,
+                       IrPotential* pot) {
   W->setZero();
   K->setZero();
+  IrPotential p;
   const Vec6 dx = Delta(ir.X_WP_ref, X_WP);
   if (ir.use_target) {
     const Vec6 d = Delta(ir.X_WP_ref, ir.X_WP_target);
@@ -26,12 +32,23 @@ void EvaluateIrRaw(const IntermediateRep& ir, const Pose& X_WP, Vec6* W, Mat6* K
     kd.head<3>() = ir.target_stiffness * d.head<3>();
     kd.tail<3>() = ir.target_rotational_stiffness * d.tail<3>();
     const double dkd = d.dot(kd);
-    if (dkd <= 0) return;
-    // Fraction of the way from the target back to the reference pose.
-    const double s = 1.0 - kd.dot(dx) / dkd;
-    if (s <= 0) return;
-    *W = s * kd;
-    *K = kd * kd.transpose() / dkd;
+    if (dkd > 0) {
+      // One generalised row along kd: depth (d.kd - kd.dx)/|kd|, stiffness
+      // |kd|^2/(d.kd); unshifted, W = s kd with s the fraction of the way
+      // from the target back to the reference pose.
+      const double kd_norm = kd.norm();
+      const double depth = (dkd - kd.dot(dx)) / kd_norm;
+      p.max_depth = depth;
+      if (depth > 0) ++p.touching_rows;
+      const double e = depth - shift;
+      if (e > 0) {
+        const double k = kd_norm * kd_norm / dkd;
+        *W = (k * e / kd_norm) * kd;
+        *K = kd * kd.transpose() / dkd;
+        p.energy_j = 0.5 * k * e * e;
+      }
+    }
+    if (pot) *pot = p;
     return;
   }
   for (int i = 0; i < ir.num_rows; ++i) {
@@ -40,10 +57,15 @@ void EvaluateIrRaw(const IntermediateRep& ir, const Pose& X_WP, Vec6* W, Mat6* K
     J.head<3>() = r.n_W;
     J.tail<3>() = r.m_W;
     const double depth = r.depth - J.dot(dx);
-    if (depth <= 0) continue;  // unilateral: a separating row stops pushing
-    *W += (r.stiffness * depth) * J;
+    p.max_depth = std::max(p.max_depth, depth);
+    if (depth > 0) ++p.touching_rows;
+    const double e = depth - shift;
+    if (e <= 0) continue;  // unilateral: a separating row stops pushing
+    *W += (r.stiffness * e) * J;
     *K += r.stiffness * (J * J.transpose());
+    p.energy_j += 0.5 * r.stiffness * e * e;
   }
+  if (pot) *pot = p;
 }
 
 bool InsideValidity(const IntermediateRep& ir, const Pose& X_WP) {
@@ -63,13 +85,15 @@ void IrEvaluator::Reset() {
   offset_.setZero();
   blend_tick_ = 0;
   fade_ = 0;
+  shift_ = 0;
+  ramp_recovery_ = true;
 }
 
 void IrEvaluator::Accept(const IntermediateRep& ir, const Pose& X_WP) {
   ir_ = ir;
   Vec6 W_new;
   Mat6 K;
-  EvaluateIrRaw(ir_, X_WP, &W_new, &K);
+  EvaluateIrShifted(ir_, X_WP, shift_, &W_new, &K, nullptr);
   // First IR: nothing to blend from (the fade-in ramps it).
   offset_ = has_ir_ ? Vec6(last_W_ - W_new) : Vec6::Zero();
   blend_tick_ = 0;
@@ -91,20 +115,40 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
   info->stale = info->age_s > params_.max_age_s;
   info->outside_validity = !InsideValidity(ir_, X_WP);
   const double target = (info->stale || info->outside_validity) ? 0.0 : 1.0;
+  if (target == 0) ramp_recovery_ = info->stale;
   const double down = params_.fade_time_s > 0 ? dt_s / params_.fade_time_s : 1.0;
   const double up = params_.fade_in_time_s > 0 ? dt_s / params_.fade_in_time_s : 1.0;
+  const double fade_old = fade_;
   fade_ = target > fade_ ? std::min(target, fade_ + up) : std::max(target, fade_ - down);
 
-  EvaluateIrRaw(ir_, X_WP, W, K);
-  if (!ir_.use_target) {
-    const Vec6 dx = Delta(ir_.X_WP_ref, X_WP);
-    for (int i = 0; i < ir_.num_rows; ++i) {
-      const IrRow& r = ir_.rows[static_cast<std::size_t>(i)];
-      if (r.depth - r.n_W.dot(dx.head<3>()) - r.m_W.dot(dx.tail<3>()) > 0) ++info->active_rows;
+  IrPotential pot;
+  EvaluateIrShifted(ir_, X_WP, shift_, W, K, &pot);
+  info->active_rows = pot.touching_rows;
+  if (params_.energy_neutral_reentry) {
+    // Energy-neutral re-entry. Scaling the contact wrench by a gain g(t)
+    // puts g'(t) U(x) into the loop at a fixed pose (U: the rows' potential):
+    // a fade-out dissipates, but a fade-in with the proxy sunk deep (it fell
+    // in while the rows were faded out) pushes it and the hand back out with
+    // energy nobody put in. Under delay the proxy leaves the validity region
+    // whenever it moves faster than radius / round trip (at 20 ms one way,
+    // over ~25 mm/s for a 1 mm radius), so this repeats several times a
+    // second and pumps (issue 8). Instead, as g rises, move the rows'
+    // surface into the body by `shift` so that g U_shift(x) does not grow,
+    // and let it come back to the true surface only where no row pushes
+    // (the anchor of a spring moved while it is slack: no work; passive
+    // set-position modulation, Lee & Huang 2010). A stale IR (link loss)
+    // still recovers with the ramp of Mark et al. 1996, once per loss.
+    const double shift_old = shift_;
+    if (pot.max_depth < shift_) shift_ = std::max(0.0, pot.max_depth);  // slack: free
+    if (fade_ > fade_old && !ramp_recovery_ && pot.energy_j > 0) {
+      // Per row, (depth - shift') <= q (depth - shift) with q^2 = g_old/g_new
+      // makes every row's energy, and so U, shrink by g_old/g_new.
+      const double q = std::sqrt(fade_old / fade_);
+      shift_ = (1 - q) * pot.max_depth + q * shift_;
     }
-  } else if (W->squaredNorm() > 0) {
-    info->active_rows = 1;
+    if (shift_ != shift_old) EvaluateIrShifted(ir_, X_WP, shift_, W, K, &pot);
   }
+  info->shift = shift_;
   const int n = std::max(1, params_.blend_ticks);
   if (blend_tick_ < n) {
     ++blend_tick_;

@@ -63,6 +63,21 @@ struct IntermediateRep {
 /// semi-definite; the rows active at X_WP). No allocation.
 void EvaluateIrRaw(const IntermediateRep& ir, const Pose& X_WP, Vec6* W, Mat6* K);
 
+/// The IR's potential at a pose: U = sum_i k_i max(0, depth_i - shift)^2 / 2,
+/// the energy (J) its springs hold (W = -dU/dx), and the largest row depth.
+/// A PDg target is one generalised row (J = kd/|kd|, k = |kd|^2/(d.kd)).
+struct IrPotential {
+  double energy_j = 0;
+  double max_depth = -1e300;  ///< of depth_i(x) before the shift (m; PDg: generalised)
+  int touching_rows = 0;      ///< rows with depth_i(x) > 0 (before the shift)
+};
+
+/// EvaluateIrRaw with every row's depth reduced by `shift` >= 0 (a contact
+/// surface moved `shift` into the body along each row), and the potential.
+/// No allocation.
+void EvaluateIrShifted(const IntermediateRep& ir, const Pose& X_WP, double shift, Vec6* W, Mat6* K,
+                       IrPotential* pot);
+
 /// True when X_WP is inside the IR's validity region.
 bool InsideValidity(const IntermediateRep& ir, const Pose& X_WP);
 
@@ -76,6 +91,13 @@ struct IrEvalParams {
   /// Time (s) to ramp it back from zero to full (recovery; slower, since the
   /// proxy may have sunk into the body meanwhile: Mark et al. 1996).
   double fade_in_time_s = 0.100;
+  /// Coming back into the validity region, raise the gain without adding
+  /// energy: the rows' surface is moved into the body (IrEvalInfo::shift) so
+  /// that gain x potential never grows at a fixed pose, and it returns to the
+  /// true surface only where that costs nothing (rows not pushing). Fading a
+  /// stiffness up at depth is what pumps under delay (issue 8). Recovery
+  /// from a stale IR (link loss) keeps the plain ramp (Mark et al. 1996).
+  bool energy_neutral_reentry = true;
 };
 
 /// What one evaluation did (for statistics and tests).
@@ -87,6 +109,7 @@ struct IrEvalInfo {
   double age_s = 0;
   double fade = 0;   ///< fade gain in [0, 1]
   double blend = 1;  ///< progress of the current blend in [0, 1]
+  double shift = 0;  ///< m the rows' surface is moved into the body (energy-neutral re-entry)
 };
 
 /// Renders the latest IR at the proxy pose, once per servo tick. Blending:
@@ -95,7 +118,8 @@ struct IrEvalInfo {
 /// to zero over `blend_ticks`, so the output is continuous even when IRs
 /// arrive faster than the blend. Fading: a gain that moves towards 0 (stale
 /// or outside validity) at 1/fade_time per second, or towards 1 at
-/// 1/fade_in_time. Not thread-safe:
+/// 1/fade_in_time; back inside the validity region the rise is made
+/// energy-neutral (IrEvalParams::energy_neutral_reentry). Not thread-safe:
 /// owned by the servo thread. No allocation after construction.
 class IrEvaluator {
  public:
@@ -121,6 +145,10 @@ class IrEvaluator {
   Vec6 offset_ = Vec6::Zero();  // blend offset at the IR's arrival
   int blend_tick_ = 0;
   double fade_ = 0;
+  double shift_ = 0;  // m, see IrEvalParams::energy_neutral_reentry
+  // The last fade-down was for a stale IR (or there was no IR yet): the
+  // next rise is the plain recovery ramp.
+  bool ramp_recovery_ = true;
 };
 
 }  // namespace hapticpd::device

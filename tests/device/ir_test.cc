@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 
 namespace hapticpd::device {
@@ -157,6 +158,71 @@ TEST(IrEval, LeavingTheValidityRegionFades) {
   turned.R = Eigen::AngleAxisd(0.6, Vec3::UnitZ()).toRotationMatrix();
   EXPECT_FALSE(InsideValidity(ir, turned));
   EXPECT_TRUE(InsideValidity(ir, ir.X_WP_ref));
+}
+
+// Issue 8: under delay the proxy keeps leaving the validity region, the
+// rows fade out, the proxy sinks, and the rows fade back in with it deep
+// inside, which pushes it (and the hand) out with energy nobody put in. The
+// proxy here runs a closed path: sideways out of validity at 1 mm depth,
+// down to 5 mm while faded, back inside, up to 1 mm again. The work the
+// contact wrench does on the proxy over the loop is what it pumps into it.
+double ContactWorkOverValidityLoop(bool energy_neutral_reentry, double* shift_at_end,
+                                   double* force_after_lift) {
+  IrEvalParams p;
+  p.max_age_s = 10;  // never stale here: only the validity region fades
+  p.energy_neutral_reentry = energy_neutral_reentry;
+  IrEvaluator ev(p);
+  const IntermediateRep ir = FloorIr(0.001, 1000, 0);  // surface at z = 0.101
+  Vec6 W;
+  Mat6 K;
+  IrEvalInfo info;
+  std::int64_t tick = 0;
+  Vec3 x(0, 0, 0.1);
+  ev.Accept(ir, Pose::FromTranslation(x));
+  for (int i = 0; i < 150; ++i)
+    ev.Evaluate(Pose::FromTranslation(x), ++tick * kMs, 1e-3, &W, &K, &info);
+  EXPECT_NEAR(W(2), 1.0, 1e-9);  // faded in, 1 mm deep
+  double work = 0;
+  // Moves the proxy to `to` in `n` ticks, then holds it for `hold` ticks,
+  // summing the work of the wrench held over each step.
+  auto move = [&](const Vec3& to, int n, int hold) {
+    const Vec3 from = x;
+    for (int i = 1; i <= n + hold; ++i) {
+      const Vec3 next = from + (to - from) * (std::min(i, n) / static_cast<double>(n));
+      work += W.head<3>().dot(next - x);
+      x = next;
+      ev.Evaluate(Pose::FromTranslation(x), ++tick * kMs, 1e-3, &W, &K, &info);
+    }
+  };
+  move(Vec3(0.02, 0, 0.1), 20, 30);  // 2 cm sideways: outside the 1 cm radius, faded out
+  EXPECT_TRUE(info.outside_validity);
+  EXPECT_EQ(W.norm(), 0.0);
+  move(Vec3(0.02, 0, 0.096), 20, 0);  // sinks to 5 mm while faded
+  move(Vec3(0, 0, 0.096), 20, 150);   // back inside: fades in
+  EXPECT_FALSE(info.outside_validity);
+  EXPECT_EQ(info.fade, 1.0);
+  move(Vec3(0, 0, 0.1), 20, 10);  // back to the start
+  *shift_at_end = info.shift;
+  move(Vec3(0, 0, 0.1015), 10, 10);  // lifted clear of the surface
+  move(Vec3(0, 0, 0.1), 10, 10);     // and down to 1 mm again
+  *force_after_lift = W(2);
+  return work;
+}
+
+TEST(IrEval, ReenteringTheValidityRegionAddsNoEnergy) {
+  double shift = 0, force = 0;
+  // Without: the fade-in at 5 mm stores k (5 mm)^2 / 2 = 12.5 mJ, 12 mJ of
+  // which comes back out on the way up to 1 mm.
+  const double pumped = ContactWorkOverValidityLoop(false, &shift, &force);
+  EXPECT_GT(pumped, 0.010);
+  EXPECT_EQ(shift, 0.0);
+  // With: the rows' surface moved in with the proxy instead (no work), so
+  // the loop gives nothing back (the fade-out at 1 mm dissipated 0.5 mJ).
+  const double work = ContactWorkOverValidityLoop(true, &shift, &force);
+  EXPECT_LE(work, 1e-9);
+  EXPECT_NEAR(shift, 0.001, 1e-6);  // followed the proxy back up, slack all the way
+  // Once the proxy has been clear of the body the true surface is back.
+  EXPECT_NEAR(force, 1.0, 1e-9);
 }
 
 TEST(IrEval, TargetSpringIsUnilateralAlongThePdDirection) {
