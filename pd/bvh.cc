@@ -180,7 +180,10 @@ SweptBoxFrame::SweptBoxFrame(const Pose& X_BA, const Vec3& sweep_B) : f(X_BA), s
   const Mat3& R = f.R;
   for (int i = 0; i < 3; ++i) v[i] = sweep_B[i];
   for (int j = 0; j < 3; ++j) v[3 + j] = R.col(j).dot(sweep_B);
-  for (int k = 0; k < 6; ++k) inv[k] = v[k] != 0 ? 1.0 / v[k] : 0.0;
+  for (int k = 0; k < 6; ++k) {
+    inv[k] = v[k] != 0 ? 1.0 / v[k] : 0.0;
+    sgn[k] = v[k] < 0 ? -1.0 : 1.0;
+  }
   for (int i = 0; i < 3; ++i) {
     t[i] = f.t[i];
     rtt[i] = R.col(i).dot(f.t);
@@ -193,12 +196,15 @@ SweptBoxFrame::SweptBoxFrame(const Pose& X_BA, const Vec3& sweep_B) : f(X_BA), s
 
 namespace {
 // Clips [*lo, *hi] to the times at which |c + t v| <= r on one axis (v the
-// sweep's projection, inv its reciprocal); false once the interval is empty.
-inline bool ClipAxis(double c, double r, double v, double inv, double* lo, double* hi) {
+// sweep's projection, inv its reciprocal, sgn its sign); false once the
+// interval is empty. With the sign known, the entry time is (-sgn r - c) inv
+// and the exit time (sgn r - c) inv: the same products as ordering the two
+// crossing times, without the ordering.
+inline bool ClipAxis(double c, double r, double v, double inv, double sgn, double* lo, double* hi) {
   if (v == 0) return std::abs(c) <= r;
-  const double t0 = (-r - c) * inv, t1 = (r - c) * inv;
-  *lo = std::max(*lo, std::min(t0, t1));
-  *hi = std::min(*hi, std::max(t0, t1));
+  const double sr = sgn * r;
+  *lo = std::max(*lo, (-sr - c) * inv);
+  *hi = std::min(*hi, (sr - c) * inv);
   return *lo <= *hi;
 }
 }  // namespace
@@ -219,7 +225,7 @@ bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const RotatedBox
   // slack relative to the magnitudes involved.
   auto clip = [&](int k, double c, double r) {
     r += margin + 1e-12 * (std::abs(c) + r);
-    return ClipAxis(c, r, sf.v[k], sf.inv[k], &lo, &hi);
+    return ClipAxis(c, r, sf.v[k], sf.inv[k], sf.sgn[k], &lo, &hi);
   };
   // Face axes of B: centre offset R a.c + t - b.c.
   for (int i = 0; i < 3; ++i) {

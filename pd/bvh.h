@@ -81,6 +81,7 @@ struct SweptBoxFrame {
   Vec3 sweep;                 ///< displacement of A, in B
   std::array<double, 6> v;    ///< sweep . axis (B axes, then A axes)
   std::array<double, 6> inv;  ///< 1 / v (unused where v == 0)
+  std::array<double, 6> sgn;  ///< sign of v (+1 or -1; unused where v == 0)
   double r[3][3];             ///< f.R, f.absR and f.t as plain arrays for the
   double ar[3][3];            ///< per-pair test's scalar code
   double t[3];
