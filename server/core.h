@@ -29,15 +29,59 @@ namespace hapticpd::server::internal {
 // of a reactor between gRPC's threads. These state what the callback API
 // guarantees: a reaction (On*) runs after the Start*/Finish call or reaction
 // that led to it, and OnDone after all of them. GrpcHandOff(this) goes before
-// each Start*/Finish (and at the end of each reaction, see Reaction),
-// GrpcTakeOver(this) at the start of each reaction. No-ops without TSan.
+// each Start*/Finish (GrpcStart does both, and at the end of each reaction,
+// see Reaction), GrpcTakeOver(this) at the start of each reaction and of
+// OnDone. The server hands its services to gRPC the same way (see
+// ServiceCall): gRPC's threads outlive a server and serve the next one in the
+// process. No-ops without TSan.
 #if defined(__SANITIZE_THREAD__)
 inline void GrpcHandOff(const void* reactor) { __tsan_release(const_cast<void*>(reactor)); }
 inline void GrpcTakeOver(const void* reactor) { __tsan_acquire(const_cast<void*>(reactor)); }
+extern "C" void __tsan_ignore_thread_begin();
+extern "C" void __tsan_ignore_thread_end();
 #else
 inline void GrpcHandOff(const void*) {}
 inline void GrpcTakeOver(const void*) {}
 #endif
+
+/// A service handler (RAII, first line of each): takes over what
+/// HapticServer::Start handed to gRPC with GrpcHandOff(service), and hands
+/// what it did back for HapticServer::Shutdown (GrpcTakeOver(ServiceDoneKey)
+/// after grpc::Server::Wait). Two keys, so that handlers stay unordered among
+/// themselves for TSan.
+inline const void* ServiceDoneKey(const void* service) {
+  return static_cast<const char*>(service) + 1;
+}
+class ServiceCall {
+ public:
+  explicit ServiceCall(const void* service) : service_(service) { GrpcTakeOver(service_); }
+  ~ServiceCall() { GrpcHandOff(ServiceDoneKey(service_)); }
+  ServiceCall(const ServiceCall&) = delete;
+  ServiceCall& operator=(const ServiceCall&) = delete;
+
+ private:
+  const void* service_;
+};
+
+/// A Start*/Finish of the reactor's base class: GrpcHandOff(reactor), then
+/// `start` with TSan not recording the memory accesses made inside it. Those
+/// are gRPC's own header code after the hand-off (the base class reads its
+/// stream pointer, Finish marks the server context as having sent its
+/// metadata), which gRPC orders before it frees the call with its own locks;
+/// TSan would pair them with that free. Synchronisation is still seen, and no
+/// reaction of ours runs inside a Start*/Finish (gRPC never inlines them).
+/// Evaluate arguments that read our members before (capture a copy).
+template <class F>
+void GrpcStart(const void* reactor, F&& start) {
+  GrpcHandOff(reactor);
+#if defined(__SANITIZE_THREAD__)
+  __tsan_ignore_thread_begin();
+  start();
+  __tsan_ignore_thread_end();
+#else
+  start();
+#endif
+}
 
 /// GrpcTakeOver on entry to a reaction, GrpcHandOff when it returns (not in
 /// OnDone, which deletes the reactor: call GrpcTakeOver there).

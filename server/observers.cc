@@ -150,8 +150,7 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
         false, &call);
     lock.unlock();
     if (call) {
-      GrpcHandOff(this);
-      Finish(finish_status_);
+      GrpcStart(this, [this, s = finish_status_] { Finish(s); });
     }
     return now + std::chrono::hours(1);
   }
@@ -208,8 +207,7 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
   in_flight_ = true;
   core_->stats.observer_frames_sent.fetch_add(1, std::memory_order_relaxed);
   // Under mu_: a forced Finish (cancellation) cannot slip in between.
-  GrpcHandOff(this);
-  StartWrite(&msg_);
+  GrpcStart(this, [&] { StartWrite(&msg_); });
   return next_pose_due_;
 }
 
@@ -233,8 +231,7 @@ void WatchReactor::Stop(const grpc::Status& status) {
     FinishLocked(status, false, &call);
   }
   if (call) {
-    GrpcHandOff(this);
-    Finish(finish_status_);
+    GrpcStart(this, [this, s = finish_status_] { Finish(s); });
   }
 }
 
@@ -251,8 +248,7 @@ void WatchReactor::OnWriteDone(bool ok) {
     }
   }
   if (call) {
-    GrpcHandOff(this);
-    Finish(finish_status_);
+    GrpcStart(this, [this, s = finish_status_] { Finish(s); });
   } else {
     scene_->changes().Notify();  // a structural change may be waiting for this observer
   }
@@ -266,8 +262,7 @@ void WatchReactor::OnCancel() {
     FinishLocked(grpc::Status::CANCELLED, true, &call);
   }
   if (call) {
-    GrpcHandOff(this);
-    Finish(finish_status_);
+    GrpcStart(this, [this, s = finish_status_] { Finish(s); });
   }
 }
 

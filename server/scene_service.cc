@@ -25,8 +25,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
       FinishOnce(core_->Unavailable());
       return;
     }
-    GrpcHandOff(this);
-    StartRead(&req_);
+    GrpcStart(this, [&] { StartRead(&req_); });
   }
 
   void Stop(const grpc::Status& status) override {
@@ -49,8 +48,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
       FinishOnceLocked(s);
       return;
     }
-    GrpcHandOff(this);
-    StartRead(&req_);
+    GrpcStart(this, [&] { StartRead(&req_); });
   }
 
   /// Handles one message (under mu_).
@@ -158,8 +156,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
     }
     // Outside the lock and the last touch of `this`: OnDone may run (and
     // delete this reactor) on another thread as soon as Finish is called.
-    GrpcHandOff(this);
-    Finish(s);
+    GrpcStart(this, [&] { Finish(s); });
   }
 
   /// Only from reactions (OnReadDone) or under Core::StopCalls' lock, where
@@ -167,8 +164,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
   void FinishOnceLocked(const grpc::Status& s) {
     if (finished_) return;
     finished_ = true;
-    GrpcHandOff(this);
-    Finish(s);
+    GrpcStart(this, [&] { Finish(s); });
   }
   void FinishOnce(const grpc::Status& s) {
     {
@@ -178,8 +174,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
     }
     // Outside the lock and the last touch of `this`: OnDone may run (and
     // delete this reactor) on another thread as soon as Finish is called.
-    GrpcHandOff(this);
-    Finish(s);
+    GrpcStart(this, [&] { Finish(s); });
   }
 
   void OnDone() override {
@@ -256,6 +251,7 @@ grpc::Status MakeBody(Core* core, const v1::BodySpec& spec, std::string_view fie
 grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerContext* ctx,
                                                         const v1::CreateSceneRequest* req,
                                                         v1::SceneSummary* resp) {
+  const ServiceCall call(this);
   if (core_->shutting_down.load()) return Done(ctx, core_->Unavailable());
   if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
   if (auto s = ValidateId(req->scene_id(), "scene_id"); !s.ok()) return Done(ctx, s);
@@ -284,6 +280,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerCont
 grpc::ServerUnaryReactor* SceneServiceImpl::ListScenes(grpc::CallbackServerContext* ctx,
                                                        const v1::ListScenesRequest*,
                                                        v1::ListScenesResponse* resp) {
+  const ServiceCall call(this);
   if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
   for (const ScenePtr& s : core_->scenes.List()) {
     if (!core_->tokens.CanSee(*ctx, s->id())) continue;
@@ -303,6 +300,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::ListScenes(grpc::CallbackServerConte
 grpc::ServerUnaryReactor* SceneServiceImpl::GetScene(grpc::CallbackServerContext* ctx,
                                                      const v1::GetSceneRequest* req,
                                                      v1::Scene* resp) {
+  const ServiceCall call(this);
   ScenePtr scene;
   if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kObserve, &scene); !s.ok())
     return Done(ctx, s);
@@ -313,6 +311,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::GetScene(grpc::CallbackServerContext
 grpc::ServerUnaryReactor* SceneServiceImpl::DeleteScene(grpc::CallbackServerContext* ctx,
                                                         const v1::DeleteSceneRequest* req,
                                                         v1::DeleteSceneResponse*) {
+  const ServiceCall call(this);
   ScenePtr scene;
   if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kAdmin, &scene); !s.ok())
     return Done(ctx, s);
@@ -328,12 +327,14 @@ grpc::ServerUnaryReactor* SceneServiceImpl::DeleteScene(grpc::CallbackServerCont
 
 grpc::ServerReadReactor<v1::AddBodyRequest>* SceneServiceImpl::AddBody(
     grpc::CallbackServerContext* ctx, v1::Body* resp) {
+  const ServiceCall call(this);
   return new AddBodyReactor(core_, ctx, resp);
 }
 
 grpc::ServerUnaryReactor* SceneServiceImpl::MoveBody(grpc::CallbackServerContext* ctx,
                                                      const v1::MoveBodyRequest* req,
                                                      v1::MoveBodyResponse* resp) {
+  const ServiceCall call(this);
   ScenePtr scene;
   if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kInject, &scene); !s.ok())
     return Done(ctx, s);
@@ -356,6 +357,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::MoveBody(grpc::CallbackServerContext
 grpc::ServerUnaryReactor* SceneServiceImpl::RemoveBody(grpc::CallbackServerContext* ctx,
                                                        const v1::RemoveBodyRequest* req,
                                                        v1::RemoveBodyResponse* resp) {
+  const ServiceCall call(this);
   ScenePtr scene;
   if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kInject, &scene); !s.ok())
     return Done(ctx, s);
@@ -369,10 +371,10 @@ grpc::ServerUnaryReactor* SceneServiceImpl::RemoveBody(grpc::CallbackServerConte
 
 grpc::ServerWriteReactor<v1::SceneEvent>* SceneServiceImpl::Watch(grpc::CallbackServerContext* ctx,
                                                                   const v1::WatchRequest* req) {
+  const ServiceCall call(this);
   struct Reject final : grpc::ServerWriteReactor<v1::SceneEvent> {
     explicit Reject(const grpc::Status& s) {
-      GrpcHandOff(this);
-      Finish(s);
+      GrpcStart(this, [&] { Finish(s); });
     }
     void OnDone() override {
       GrpcTakeOver(this);

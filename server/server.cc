@@ -219,6 +219,10 @@ void HapticServer::Start() {
   }
   builder.RegisterService(m.scene_service.get());
   builder.RegisterService(m.haptic_service.get());
+  // gRPC's threads may predate this server (they serve every server in the
+  // process): the handlers take the services over (ServiceCall in core.h).
+  internal::GrpcHandOff(m.scene_service.get());
+  internal::GrpcHandOff(m.haptic_service.get());
   m.server = builder.BuildAndStart();
   if (!m.server || (!o.listen.empty() && m.port == 0)) {
     m.core.builds.Stop();
@@ -283,6 +287,9 @@ void HapticServer::Shutdown() {
     Log()->error("shutdown: {} calls still active after 10 s", m.core.active_calls());
   }
   m.server->Wait();
+  // Every handler has returned (see ServiceCall).
+  internal::GrpcTakeOver(internal::ServiceDoneKey(m.scene_service.get()));
+  internal::GrpcTakeOver(internal::ServiceDoneKey(m.haptic_service.get()));
   m.publishers->Stop();
   if (m.status_thread.joinable()) m.status_thread.join();
   {

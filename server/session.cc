@@ -43,8 +43,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       counted_ = true;
     }
     worker_ = std::thread([this] { Run(); });
-    GrpcHandOff(this);
-    StartRead(&req_);
+    GrpcStart(this, [&] { StartRead(&req_); });
   }
 
   void Stop(const grpc::Status& status) override {
@@ -120,8 +119,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       return;
     }
     mb_cv_.notify_all();
-    GrpcHandOff(this);
-    StartRead(&req_);
+    GrpcStart(this, [&] { StartRead(&req_); });
   }
 
   void OnWriteDone(bool ok) override {
@@ -178,8 +176,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     if (writing_.has_update()) writing_.mutable_update()->set_server_send_time_ns(NowNs());
     sent_update_ = writing_.has_update();
     in_flight_ = true;
-    GrpcHandOff(this);
-    StartWrite(&writing_);
+    GrpcStart(this, [&] { StartWrite(&writing_); });
   }
 
   /// Hands a message to the writer (swapping it out of *msg).
@@ -207,8 +204,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     }
     if (!in_flight_ || force) {
       finish_called_ = true;
-      GrpcHandOff(this);
-      Finish(finish_status_);
+      GrpcStart(this, [this, s = finish_status_] { Finish(s); });
     }
   }
 
@@ -593,6 +589,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
 
 grpc::ServerBidiReactor<v1::CoupleRequest, v1::CoupleResponse>* HapticServiceImpl::Couple(
     grpc::CallbackServerContext* ctx) {
+  const ServiceCall call(this);
   return new CoupleReactor(core_, ctx);
 }
 

@@ -6,7 +6,6 @@
 
 #include <filesystem>
 #include <fstream>
-#include <future>
 
 #include "tests/server/server_harness.h"
 #include "tests/test_util.h"
@@ -17,7 +16,10 @@ namespace {
 class LifecycleTest : public ::testing::TestWithParam<Transport> {};
 
 /// grpc.health.v1.Health/Check for the whole server, through the generic
-/// stub (request: empty message; response: field 1 = ServingStatus).
+/// stub (request: empty message; response: field 1 = ServingStatus). On a
+/// completion queue drained by this thread: a callback on one of gRPC's
+/// threads would hand its result over through gRPC's own locks, which
+/// ThreadSanitizer cannot see (the tsan preset).
 int HealthStatus(const std::shared_ptr<grpc::Channel>& channel) {
   grpc::GenericStub stub(channel);
   grpc::ClientContext ctx;
@@ -25,10 +27,18 @@ int HealthStatus(const std::shared_ptr<grpc::Channel>& channel) {
   grpc::ByteBuffer req, resp;
   grpc::Slice empty("");
   req = grpc::ByteBuffer(&empty, 1);
-  std::promise<grpc::Status> done;
-  stub.UnaryCall(&ctx, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &req, &resp,
-                 [&](grpc::Status s) { done.set_value(s); });
-  const grpc::Status s = done.get_future().get();
+  grpc::CompletionQueue cq;
+  auto call = stub.PrepareUnaryCall(&ctx, "/grpc.health.v1.Health/Check", req, &cq);
+  call->StartCall();
+  grpc::Status s;
+  call->Finish(&resp, &s, reinterpret_cast<void*>(1));
+  void* tag = nullptr;
+  bool ok = false;
+  const bool got = cq.Next(&tag, &ok);
+  cq.Shutdown();
+  while (cq.Next(&tag, &ok)) {
+  }
+  if (!got) return -1;
   if (!s.ok()) return -1;
   std::vector<grpc::Slice> slices;
   if (!resp.Dump(&slices).ok()) return -1;
