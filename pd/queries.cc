@@ -106,9 +106,39 @@ class RotationCache : public LastATriangle<RotationCache> {
     Fit(A.mesh().triangles().size(), &s_.rotated_triangles, &s_.rotated_triangle_stamp);
   }
 
+  // A leaf's box on B's axes is the tight box of its rotated triangles
+  // (their corners are needed by the leaf tests anyway); an internal node's
+  // is the rotated box's. The tight box is often much smaller: a box turned
+  // by R has an axis-aligned hull up to sqrt(3) times wider per axis.
+  static constexpr Index kTightBoxTriangles = 64;
   const internal::RotatedBox& NodeA(const BvhNode& n) {
     return Cached(&n - A_.bvh().nodes().data(), &s_.rotated_nodes, &s_.rotated_node_stamp,
-                  [&](internal::RotatedBox* r) { *r = internal::RotateBoxA(swept_, n); });
+                  [&](internal::RotatedBox* r) {
+                    if (!n.leaf() && n.size > kTightBoxTriangles) {
+                      *r = internal::RotateBoxA(swept_, n);
+                      return;
+                    }
+                    if (!n.leaf()) {
+                      // The union of the children's tight boxes.
+                      const internal::RotatedBox& c0 = NodeA(A_.bvh().nodes()[n.first]);
+                      const internal::RotatedBox& c1 = NodeA(A_.bvh().nodes()[n.first + 1]);
+                      const Vec3 lo = (c0.c - c0.r).cwiseMin(c1.c - c1.r);
+                      const Vec3 hi = (c0.c + c0.r).cwiseMax(c1.c + c1.r);
+                      r->c = 0.5 * (lo + hi);
+                      r->r = 0.5 * (hi - lo);
+                      return;
+                    }
+                    const auto& prims = A_.bvh().primitives();
+                    Vec3 lo = Rotated(prims[n.first]).v[0], hi = lo;
+                    for (Index i = 0; i < n.count; ++i) {
+                      for (const Vec3& v : Rotated(prims[n.first + i]).v) {
+                        lo = lo.cwiseMin(v);
+                        hi = hi.cwiseMax(v);
+                      }
+                    }
+                    r->c = 0.5 * (lo + hi);
+                    r->r = 0.5 * (hi - lo);
+                  });
   }
   const internal::RotatedBox& NodeB(const BvhNode& n) {
     return Cached(&n - B_.bvh().nodes().data(), &s_.rotated_b_nodes, &s_.rotated_b_node_stamp,
@@ -117,15 +147,17 @@ class RotationCache : public LastATriangle<RotationCache> {
 
  private:
   friend class LastATriangle<RotationCache>;
+  const QueryScratch::RotatedTriangle& Rotated(Index f) {
+    return Cached(f, &s_.rotated_triangles, &s_.rotated_triangle_stamp,
+                  [&](QueryScratch::RotatedTriangle* o) {
+                    const Triangle& t = A_.mesh().triangles()[f];
+                    const auto& V = A_.mesh().vertices();
+                    for (int k = 0; k < 3; ++k) o->v[k] = s_.rotated_R * V[t[k]];
+                    o->n = s_.rotated_R * A_.mesh().face_normals()[f];
+                  });
+  }
   void Make(Index f, TriB* tri, Vec3* normal) {
-    const QueryScratch::RotatedTriangle& r =
-        Cached(f, &s_.rotated_triangles, &s_.rotated_triangle_stamp,
-               [&](QueryScratch::RotatedTriangle* o) {
-                 const Triangle& t = A_.mesh().triangles()[f];
-                 const auto& V = A_.mesh().vertices();
-                 for (int k = 0; k < 3; ++k) o->v[k] = s_.rotated_R * V[t[k]];
-                 o->n = s_.rotated_R * A_.mesh().face_normals()[f];
-               });
+    const QueryScratch::RotatedTriangle& r = Rotated(f);
     for (int k = 0; k < 3; ++k) tri->v[k] = r.v[k] + t_;
     *normal = r.n;
   }
