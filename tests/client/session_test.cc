@@ -122,13 +122,28 @@ TEST(Session, PressingIntoABodyPushesOutMoreWithDepth) {
   EXPECT_TRUE(session.X_PA().t.norm() < 1e-9);
 
   struct Sample {
-    double depth;  // of the handle's sphere into the box (m)
-    Vec3 F;        // commanded on the handle (W)
+    double depth;     // of the handle's sphere into the box (m)
+    Vec3 F;           // commanded on the handle (W)
+    Vec3 F_contact;   // the IR's contact force on the proxy (W)
+    bool after_late;  // within kSettleTicks of a tick the machine delayed
   };
+  // A tick the machine delays by 2 ms or more (here under a sanitizer on 2
+  // busy cores: one CI run pulled 0.32 N down 2.3 mm above the surface) lets
+  // the simulated hand move on in real time while the proxy takes one step:
+  // the coupling stretches and pulls for a few tens of ms. The
+  // commanded-force checks below skip the ticks of that window; the contact
+  // force is checked on every tick.
+  constexpr int kSettleTicks = 30;
   std::vector<Sample> samples;
   samples.reserve(3000);
+  std::int64_t prev_ns = 0;
+  int since_late = kSettleTicks;
   RunTicks(loop, 2300, [&](const TickRecord& r) {
-    samples.push_back({kBoxTop - (r.X_WH.t.z() - kProbeRadius), r.F_cmd_W.force});
+    if (prev_ns != 0 && r.time_ns - prev_ns > 3'000'000) since_late = 0;
+    prev_ns = r.time_ns;
+    samples.push_back({kBoxTop - (r.X_WH.t.z() - kProbeRadius), r.F_cmd_W.force, r.W_ir.head<3>(),
+                       since_late < kSettleTicks});
+    ++since_late;
     return true;
   });
   session.Stop();
@@ -142,9 +157,18 @@ TEST(Session, PressingIntoABodyPushesOutMoreWithDepth) {
   EXPECT_EQ(st.disconnects, 0u);
 
   double dmax = 0, fmax = 0;
+  std::size_t settling = 0;
   for (const Sample& s : samples) {
     dmax = std::max(dmax, s.depth);
     fmax = std::max(fmax, s.F.z());
+    // The contact pushes out along the face normal (+z) or not at all.
+    EXPECT_GE(s.F_contact.z(), 0.0) << "at depth " << s.depth;
+    EXPECT_LE(std::hypot(s.F_contact.x(), s.F_contact.y()), 1e-9 + 1e-6 * s.F_contact.z())
+        << "at depth " << s.depth;
+    if (s.after_late) {
+      ++settling;
+      continue;
+    }
     // Whenever there is a real force, it pushes out (+z, the face normal).
     if (s.F.norm() > 0.3) {
       EXPECT_GT(s.F.z(), 0.9 * s.F.norm()) << "at depth " << s.depth;
@@ -154,6 +178,10 @@ TEST(Session, PressingIntoABodyPushesOutMoreWithDepth) {
       EXPECT_LT(s.F.norm(), 0.3) << "at depth " << s.depth;
     }
   }
+  // Under a sanitizer on 2 busy cores most ticks can fall in a window; the
+  // commanded-force checks must still have covered a real part of the press.
+  EXPECT_GT(samples.size() - settling, samples.size() / 10)
+      << "too many delayed ticks for the checks to mean much";
   ASSERT_GT(dmax, 0.004) << "the hand never pressed in";
   EXPECT_GT(fmax, 1.0);
   // Grows with depth: mean push over the deepest third beats the shallowest third.
