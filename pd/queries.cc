@@ -964,14 +964,6 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
             return true;
           }
         }
-        // Pairs whose boxes overlap at t = 0 (key 0) come first in the
-        // best-first order and are all met: the start check lives here.
-        if (request.check_start && key <= 0 &&
-            internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
-          start_crossing = true;
-          RememberWitness(A, B, fa, fb, scratch);
-          return false;
-        }
         if (feature_tol > 0) visited.push_back({key, fa, fb});
         const std::uint8_t own_a = ma.owned_mask(fa);
         const std::uint8_t own_b = mb.owned_mask(fb);
@@ -992,6 +984,16 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
               ((sa[1] > 0) == (sa[2] > 0))) {
             return true;  // A's triangle never reaches B's plane: no event at all
           }
+        }
+        // Pairs whose boxes overlap at t = 0 (key 0) come first in the
+        // best-first order and are all met: the start check lives here
+        // (after the plane filter above: a triangle strictly on one side of
+        // the other's plane at t = 0 does not cross it).
+        if (request.check_start && key <= 0 &&
+            internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
+          start_crossing = true;
+          RememberWitness(A, B, fa, fb, scratch);
+          return false;
         }
         if (na.squaredNorm() > 0) {
           const double shift = -t_best * na.dot(d_B);
