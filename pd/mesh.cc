@@ -74,14 +74,6 @@ class SoupImporter final : public OpenMesh::IO::ImporterT<OmMesh> {
   internal::PolygonSoup soup;
 };
 
-// `s` with bytes outside printable ASCII shown as '?', for error messages.
-std::string Printable(std::string s) {
-  for (char& c : s) {
-    if (c < 0x20 || c > 0x7e) c = '?';
-  }
-  return s;
-}
-
 // OpenMesh's OBJ reader silently skips a vertex line it cannot parse (e.g.
 // "v nan 0 0"), which would shift every later index, and silently drops faces
 // that repeat a vertex. Scan the text first so such files fail with the real
@@ -105,7 +97,7 @@ std::size_t PrescanObj(const std::string& path) {
           const std::size_t d = c[0] == '-' ? 1 : 0;
           if (d >= c.size() || !std::isdigit(static_cast<unsigned char>(c[d]))) {
             throw MeshError(path + ": line " + std::to_string(lineno) + ": face corner '" +
-                            Printable(c) + "' does not start with a vertex index");
+                            internal::Printable(c) + "' does not start with a vertex index");
           }
         }
       }

@@ -12,21 +12,23 @@
 #include "pd/mesh.h"
 
 namespace hapticpd::pd::internal {
+
+std::string Printable(std::string_view text, std::size_t max_chars) {
+  std::string s(text.substr(0, max_chars));
+  for (char& c : s) {
+    if (c < 0x20 || c > 0x7e) c = '?';
+  }
+  if (text.size() > max_chars) s += "...";
+  return s;
+}
+
 namespace {
 
 constexpr std::string_view kSpace = " \t\r\v\f";
 constexpr auto npos = std::string_view::npos;
 
-// A token for an error message: at most 24 characters, bytes outside
-// printable ASCII shown as '?'.
-std::string Shown(std::string_view tok) {
-  std::string s(tok.substr(0, 24));
-  for (char& c : s) {
-    if (c < 0x20 || c > 0x7e) c = '?';
-  }
-  if (tok.size() > 24) s += "...";
-  return s;
-}
+// A token for an error message: at most 24 characters.
+std::string Shown(std::string_view tok) { return Printable(tok, 24); }
 
 // Whitespace-separated tokens of one line, without allocating.
 class Tokens {

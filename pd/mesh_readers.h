@@ -29,6 +29,10 @@ struct PolygonSoup {
   void EndFace() { face_end.push_back(corners.size()); }
 };
 
+/// `text` for an error message: bytes outside printable ASCII shown as '?',
+/// cut after `max_chars` characters (then "..." is appended).
+std::string Printable(std::string_view text, std::size_t max_chars = std::string_view::npos);
+
 /// Parses a plain ASCII OFF file ("OFF", counts on the next line, one vertex
 /// "x y z" per line, one face "n i0 .. i(n-1) [colour]" per line, '#'
 /// comments). Every face has >= 3 indices, all in range. Throws MeshError
