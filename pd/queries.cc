@@ -931,12 +931,22 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
                : std::numeric_limits<double>::infinity();
   };
   // A's triangle's box swept over [0, t_best], inflated by the feature
-  // tolerance (and round-off slack).
+  // tolerance (and round-off slack); kept for the leaf's pairs with that
+  // triangle (the leaf cull and each pair test ask for the same box).
+  Index box_fa = -1;
+  double box_t = -1;
+  Vec3 box_lo, box_hi;
   auto swept_a_box = [&](Index fa, Vec3* lo, Vec3* hi) {
-    const Vec3 step = t_best * d_B;
-    const Vec3 pad = Vec3::Constant(feature_tol + box_slack);
-    *lo = a_tris.Lo(fa) + step.cwiseMin(0.0) - pad;
-    *hi = a_tris.Hi(fa) + step.cwiseMax(0.0) + pad;
+    if (fa != box_fa || t_best != box_t) {
+      box_fa = fa;
+      box_t = t_best;
+      const Vec3 step = t_best * d_B;
+      const Vec3 pad = Vec3::Constant(feature_tol + box_slack);
+      box_lo = a_tris.Lo(fa) + step.cwiseMin(0.0) - pad;
+      box_hi = a_tris.Hi(fa) + step.cwiseMax(0.0) + pad;
+    }
+    *lo = box_lo;
+    *hi = box_hi;
   };
   TraversePairsBestFirst(
       A.bvh(), B.bvh(), scratch, [](const BvhNode&, const BvhNode&) { return true; }, earliest,
