@@ -100,8 +100,6 @@ struct Rig {
   }
 };
 
-/// Ticks `loop` at 1 kHz on the steady clock for `ticks` ticks (or until
-/// `each` returns false).
 /// Largest per-tick change of a fading force allowed in a real-time test,
 /// as a fraction of the force before the fade: `on_time` for a tick that
 /// came on time; the fade runs in real time, so a tick the machine delayed
@@ -111,6 +109,22 @@ inline double FadeStepAllowance(double dt_s, double on_time, double per_ms) {
   return std::max(on_time, per_ms * dt_s / 1e-3);
 }
 
+/// Time (s) from the previous tick record fed to it to this one; 0 for the
+/// first. For tests that allow for ticks the machine delayed.
+class TickGap {
+ public:
+  double operator()(const device::TickRecord& r) {
+    const double dt = prev_ns_ != 0 ? 1e-9 * static_cast<double>(r.time_ns - prev_ns_) : 0.0;
+    prev_ns_ = r.time_ns;
+    return dt;
+  }
+
+ private:
+  std::int64_t prev_ns_ = 0;
+};
+
+/// Ticks `loop` at 1 kHz on the steady clock for `ticks` ticks (or until
+/// `each` returns false).
 inline void RunTicks(device::ServoLoop& loop, int ticks,
                      const std::function<bool(const device::TickRecord&)>& each) {
   const auto& clock = device::SteadyClock::Instance();

@@ -136,11 +136,10 @@ TEST(Session, PressingIntoABodyPushesOutMoreWithDepth) {
   constexpr int kSettleTicks = 30;
   std::vector<Sample> samples;
   samples.reserve(3000);
-  std::int64_t prev_ns = 0;
+  testing::TickGap gap;
   int since_late = kSettleTicks;
   RunTicks(loop, 2300, [&](const TickRecord& r) {
-    if (prev_ns != 0 && r.time_ns - prev_ns > 3'000'000) since_late = 0;
-    prev_ns = r.time_ns;
+    if (gap(r) > 3e-3) since_late = 0;
     samples.push_back({kBoxTop - (r.X_WH.t.z() - kProbeRadius), r.F_cmd_W.force, r.W_ir.head<3>(),
                        since_late < kSettleTicks});
     ++since_late;
@@ -215,15 +214,14 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
   // Lateness (in periods) of the ticks since the IR last went stale: the
   // link gain fades in real time, the IR's contact wrench in ticks.
   double late_stale = 0;
-  std::int64_t prev_ns = 0;
+  testing::TickGap gap;
   auto track_lateness = [&](const TickRecord& r) {
-    const double dt = 1e-9 * static_cast<double>(r.time_ns - prev_ns);
+    const double dt = gap(r);
     if (!r.ir.stale) {
       late_stale = 0;
-    } else if (prev_ns != 0) {
+    } else {
       late_stale += std::max(0.0, dt / config.period_s - 1.0);
     }
-    prev_ns = r.time_ns;
   };
   double f_before = 0;
   RunTicks(loop, 1500, [&](const TickRecord& r) {
