@@ -161,8 +161,9 @@ class Session {
 
   mutable std::mutex stats_mu_;
   SessionStats counters_;
-  device::Histogram rtt_us_{0, 100'000, 10'000};
-  device::Histogram compute_us_{0, 100'000, 10'000};
+  // 1 us to 100 s, 32 bins per octave (2.2 % resolution).
+  device::Histogram rtt_us_ = device::Histogram::LogScale(1, 1e8, 32);
+  device::Histogram compute_us_ = device::Histogram::LogScale(1, 1e8, 32);
 
   std::jthread thread_;
 };

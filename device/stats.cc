@@ -9,6 +9,18 @@ namespace hapticpd::device {
 Histogram::Histogram(double lo, double hi, int bins)
     : lo_(lo), width_((hi - lo) / bins), bins_(static_cast<std::size_t>(bins), 0) {}
 
+Histogram Histogram::LogScale(double lo, double hi, int per_octave) {
+  const int octaves = std::max(1, static_cast<int>(std::ceil(std::log2(hi / lo))));
+  Histogram h(lo, hi, 1 + octaves * per_octave);
+  h.per_octave_ = per_octave;
+  return h;
+}
+
+double Histogram::Edge(std::size_t i) const {
+  if (per_octave_ > 0) return lo_ * std::exp2(static_cast<double>(i) / per_octave_);
+  return lo_ + width_ * static_cast<double>(i + 1);
+}
+
 void Histogram::Add(double x) {
   if (count_ == 0) {
     max_ = min_ = x;
@@ -19,7 +31,9 @@ void Histogram::Add(double x) {
   ++count_;
   sum_ += x;
   sum_sq_ += x * x;
-  const double b = std::floor((x - lo_) / width_);
+  // Log scale: bin 0 holds x <= lo, bin k the samples in (lo 2^((k-1)/n), lo 2^(k/n)].
+  const double b = per_octave_ > 0 ? (x > lo_ ? std::ceil(std::log2(x / lo_) * per_octave_) : 0.0)
+                                   : std::floor((x - lo_) / width_);
   const std::size_t i = b < 0 ? 0 : std::min(bins_.size() - 1, static_cast<std::size_t>(b));
   ++bins_[i];
 }
@@ -46,7 +60,7 @@ double Histogram::Quantile(double q) const {
   for (std::size_t i = 0; i < bins_.size(); ++i) {
     seen += bins_[i];
     if (seen >= std::max<std::uint64_t>(1, target)) {
-      return std::min(max_, lo_ + width_ * static_cast<double>(i + 1));
+      return std::min(max_, Edge(i));
     }
   }
   return max_;

@@ -9,10 +9,17 @@
 namespace hapticpd::device {
 
 /// A fixed-bin histogram with running mean/std/max; samples beyond the range
-/// land in the last bin (and still count for mean/std/max).
+/// land in the last bin (and still count for mean/std/max), so a quantile
+/// that falls there reads as the range's top (capped by the maximum).
 class Histogram {
  public:
+  /// `bins` equal bins over [lo, hi].
   Histogram(double lo, double hi, int bins);
+  /// Log-scale bins: `per_octave` bins per doubling from lo (> 0) up to at
+  /// least hi, one more for samples <= lo; the relative resolution is
+  /// 2^(1/per_octave) - 1 over the whole range (for latencies that span
+  /// microseconds to seconds).
+  static Histogram LogScale(double lo, double hi, int per_octave);
   void Add(double x);
   void Clear();
   std::uint64_t count() const { return count_; }
@@ -24,7 +31,11 @@ class Histogram {
   double Quantile(double q) const;
 
  private:
+  /// Upper edge of bin i.
+  double Edge(std::size_t i) const;
+
   double lo_, width_;
+  double per_octave_ = 0;  ///< > 0: log-scale bins
   std::vector<std::uint64_t> bins_;
   std::uint64_t count_ = 0;
   double sum_ = 0, sum_sq_ = 0, max_ = 0, min_ = 0;

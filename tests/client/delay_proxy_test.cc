@@ -62,6 +62,11 @@ TEST_P(DelayProxyTest, PassivityObserverAndForceLimitUnderDelay) {
       work_in, st.energy_into_hand_j, st.passivity_min_j, eps);
   EXPECT_GT(proxy.bytes(), 0u) << "the session did not go through the proxy";
   EXPECT_GT(ss.contact_updates, 10u) << "the loop never got contact through the proxy";
+  // Both directions are delayed by delay +-20%, releases in order: the
+  // session's round trip is at least 1.6 delays (its histogram must reach
+  // that far: it once topped out at 100 ms and read 100 ms at 50 and 100 ms).
+  EXPECT_GE(ss.rtt_p50_us, 1.6e3 * delay_ms);
+  EXPECT_GE(ss.rtt_max_us, ss.rtt_p99_us);
   // At 50-100 ms the proxy is outside the IR's validity region most of the
   // time and the force stays small (0.36-0.91 N measured, against 0.8-1.4 N
   // at 20 ms and 1.7-2.0 N at 5 ms); 0.2 N is still a press.
