@@ -84,14 +84,20 @@ std::size_t PrescanObj(const std::string& path) {
   std::size_t lineno = 0, faces = 0;
   while (std::getline(in, line)) {
     ++lineno;
-    std::size_t i = line.find_first_not_of(" \t");
-    if (i == std::string::npos || line.compare(i, 2, "v ") != 0) {
-      if (i != std::string::npos && line.compare(i, 2, "f ") == 0) {
+    // The keyword ends at any white space, as OpenMesh's reader reads it
+    // (`stream >> keyword`): "f\t/x/" is a face line too.
+    constexpr const char* kSpace = " \t\n\v\f\r";
+    const std::size_t i = line.find_first_not_of(kSpace);
+    const std::size_t key_end = i == std::string::npos ? i : line.find_first_of(kSpace, i);
+    const std::string key = i == std::string::npos ? "" : line.substr(i, key_end - i);
+    const std::size_t rest = key_end == std::string::npos ? line.size() : key_end;
+    if (key != "v") {
+      if (key == "f") {
         ++faces;
         // Every corner ("v", "v/vt", "v//vn", "v/vt/vn") starts with an index;
         // OpenMesh's reader aborts the process (an assert) on a face whose
         // corners yield none, e.g. "f /x/".
-        std::istringstream corners(line.substr(i + 2));
+        std::istringstream corners(line.substr(rest));
         std::string c;
         while (corners >> c) {
           const std::size_t d = c[0] == '-' ? 1 : 0;
@@ -103,7 +109,7 @@ std::size_t PrescanObj(const std::string& path) {
       }
       continue;
     }
-    const char* p = line.c_str() + i + 2;
+    const char* p = line.c_str() + rest;
     for (int k = 0; k < 3; ++k) {
       char* end = nullptr;
       const double x = std::strtod(p, &end);
