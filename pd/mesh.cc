@@ -86,20 +86,16 @@ std::size_t PrescanObj(const std::string& path) {
     ++lineno;
     // The keyword ends at any white space, as OpenMesh's reader reads it
     // (`stream >> keyword`): "f\t/x/" is a face line too.
-    constexpr const char* kSpace = " \t\n\v\f\r";
-    const std::size_t i = line.find_first_not_of(kSpace);
-    const std::size_t key_end = i == std::string::npos ? i : line.find_first_of(kSpace, i);
-    const std::string key = i == std::string::npos ? "" : line.substr(i, key_end - i);
-    const std::size_t rest = key_end == std::string::npos ? line.size() : key_end;
+    internal::Tokens tokens(line);
+    std::string_view key;
+    if (!tokens.Next(&key)) continue;
     if (key != "v") {
       if (key == "f") {
         ++faces;
         // Every corner ("v", "v/vt", "v//vn", "v/vt/vn") starts with an index;
         // OpenMesh's reader aborts the process (an assert) on a face whose
         // corners yield none, e.g. "f /x/".
-        std::istringstream corners(line.substr(rest));
-        std::string c;
-        while (corners >> c) {
+        for (std::string_view c; tokens.Next(&c);) {
           const std::size_t d = c[0] == '-' ? 1 : 0;
           if (d >= c.size() || !std::isdigit(static_cast<unsigned char>(c[d]))) {
             throw MeshError(path + ": line " + std::to_string(lineno) + ": face corner '" +
@@ -109,7 +105,7 @@ std::size_t PrescanObj(const std::string& path) {
       }
       continue;
     }
-    const char* p = line.c_str() + rest;
+    const char* p = tokens.rest().data();
     for (int k = 0; k < 3; ++k) {
       char* end = nullptr;
       const double x = std::strtod(p, &end);
@@ -118,8 +114,9 @@ std::size_t PrescanObj(const std::string& path) {
                         ": vertex has fewer than 3 numeric coordinates");
       }
       if (!std::isfinite(x)) {
-        throw MeshError(path + ": line " + std::to_string(lineno) +
-                        ": vertex has a non-finite coordinate (" + line.substr(i) + ")");
+        throw MeshError(
+            path + ": line " + std::to_string(lineno) + ": vertex has a non-finite coordinate (" +
+            internal::Printable(line.substr(line.find_first_not_of(internal::kSpace)), 80) + ")");
       }
       p = end;
     }

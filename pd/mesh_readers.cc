@@ -22,41 +22,33 @@ std::string Printable(std::string_view text, std::size_t max_chars) {
   return s;
 }
 
+bool Tokens::Next(std::string_view* tok) {
+  const std::size_t b = rest_.find_first_not_of(kSpace);
+  if (b == std::string_view::npos) {
+    rest_ = {};
+    return false;
+  }
+  rest_.remove_prefix(b);
+  const std::size_t e = std::min(rest_.find_first_of(kSpace), rest_.size());
+  *tok = rest_.substr(0, e);
+  rest_.remove_prefix(e);
+  return true;
+}
+
+std::size_t Tokens::Count() const {
+  Tokens copy(*this);
+  std::string_view t;
+  std::size_t n = 0;
+  while (copy.Next(&t)) ++n;
+  return n;
+}
+
 namespace {
 
-constexpr std::string_view kSpace = " \t\r\v\f";
 constexpr auto npos = std::string_view::npos;
 
 // A token for an error message: at most 24 characters.
 std::string Shown(std::string_view tok) { return Printable(tok, 24); }
-
-// Whitespace-separated tokens of one line, without allocating.
-class Tokens {
- public:
-  explicit Tokens(std::string_view s) : rest_(s) {}
-  bool Next(std::string_view* tok) {
-    const std::size_t b = rest_.find_first_not_of(kSpace);
-    if (b == npos) {
-      rest_ = {};
-      return false;
-    }
-    rest_.remove_prefix(b);
-    const std::size_t e = std::min(rest_.find_first_of(kSpace), rest_.size());
-    *tok = rest_.substr(0, e);
-    rest_.remove_prefix(e);
-    return true;
-  }
-  std::size_t Count() const {
-    Tokens copy(*this);
-    std::string_view t;
-    std::size_t n = 0;
-    while (copy.Next(&t)) ++n;
-    return n;
-  }
-
- private:
-  std::string_view rest_;
-};
 
 // Lines of a text, numbered from 1 (or on from a given line).
 class Lines {

@@ -33,6 +33,23 @@ struct PolygonSoup {
 /// cut after `max_chars` characters (then "..." is appended).
 std::string Printable(std::string_view text, std::size_t max_chars = std::string_view::npos);
 
+/// White space between tokens of a text mesh line (as OpenMesh's readers
+/// split them with `>>`; lines come without their '\n').
+inline constexpr std::string_view kSpace = " \t\r\v\f";
+
+/// Whitespace-separated tokens of one line, without allocating.
+class Tokens {
+ public:
+  explicit Tokens(std::string_view s) : rest_(s) {}
+  bool Next(std::string_view* tok);
+  std::size_t Count() const;
+  /// What follows the last token returned.
+  std::string_view rest() const { return rest_; }
+
+ private:
+  std::string_view rest_;
+};
+
 /// Parses a plain ASCII OFF file ("OFF", counts on the next line, one vertex
 /// "x y z" per line, one face "n i0 .. i(n-1) [colour]" per line, '#'
 /// comments). Every face has >= 3 indices, all in range. Throws MeshError
