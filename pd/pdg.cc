@@ -1,5 +1,7 @@
 #include "pd/pdg.h"
 
+#include "pd/primitives.h"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -239,6 +241,8 @@ PdgQueryData::PdgQueryData() {
   ccd.features.reserve(1024);
   proximity.pairs.reserve(1024);
   best_features.reserve(1024);
+  best_pairs.reserve(8192);
+  ccd.near_pairs.reserve(8192);
   extra_features.reserve(1024);
   qp.Reserve(2048);
   pdt_result.features.reserve(1024);
@@ -321,6 +325,7 @@ Sweep SweepTranslationFrom(PdgContext& c, const Pose& X_from, const Pose& X_to, 
   CcdRequest req;
   req.feature_tolerance = c.eps;
   req.check_start = check_start;
+  req.near_pairs = true;
   if (TranslationalCcd(c.A, X_from, d, c.B, c.X_WB, req, &c.data.ccd, &c.data.scratch)) {
     *X_contact = c.data.ccd.X_WA_contact;
     return Sweep::kHit;
@@ -357,6 +362,7 @@ bool SweepRotation(PdgContext& c, const Pose& X_from, Pose* X_contact) {
   const Pose X_s = c.data.ccd.X_WA_contact;
   req = CcdRequest();
   req.feature_tolerance = c.eps;
+  req.near_pairs = true;
   if (!TranslationalCcd(c.A, X_s, gap * (1 + 1e-6), c.B, c.X_WB, req, &c.data.ccd,
                         &c.data.scratch)) {
     return false;
@@ -448,6 +454,9 @@ struct Best {
   Vec6 z = Vec6::Zero();
   double sigma = std::numeric_limits<double>::infinity();
   bool valid = false;
+  /// data.best_pairs holds every triangle pair within eps at X (the pairs
+  /// near the contact of the sweep that reached it).
+  bool near_pairs = false;
 };
 
 void Accept(PdgContext& c, const Pose& X, Best* best) {
@@ -455,6 +464,16 @@ void Accept(PdgContext& c, const Pose& X, Best* best) {
   best->z = Z(c, X);
   best->sigma = Sigma(c, best->z);
   best->valid = true;
+  best->near_pairs = false;
+}
+
+// Accepts the contact X that the last sweep (data.ccd) reached, with its
+// feature pairs and near triangle pairs.
+void AcceptSwept(PdgContext& c, const Pose& X, Best* best) {
+  Accept(c, X, best);
+  c.data.best_features = c.data.ccd.features;
+  c.data.best_pairs = c.data.ccd.near_pairs;
+  best->near_pairs = true;
 }
 
 // Free start from the SE(3) coherence cache: the two cached poses nearest to
@@ -526,24 +545,54 @@ void ClassifyAlongMotion(const PdgContext& c, const Best& best,
   }
 }
 
-bool Polish(PdgContext& c, Best* best, std::vector<FeaturePair>* features) {
+// Does A collide at X, a pose within `reach` (a bound on any point's
+// displacement) of the contact `best`? Every triangle pair within eps at
+// best is in data.best_pairs (when best.near_pairs), so for reach < eps only
+// those pairs can cross at X (and a motion that short cannot enclose one
+// mesh in the other without crossing): they are tested alone instead of a
+// full Collide, which at a free pose near contact has to visit every
+// nearby box pair.
+bool CollidingNear(PdgContext& c, const Best& best, const Pose& X, double reach) {
+  if (!best.near_pairs || !(reach < 0.5 * c.eps)) return Colliding(c, X);
+  const Pose X_BA = c.X_WB.Inverse() * X;
+  const Mesh& ma = c.A.mesh();
+  const Mesh& mb = c.B.mesh();
+  Index fa_last = -1;
+  std::array<Vec3, 3> ta;
+  for (const TrianglePair& p : c.data.best_pairs) {
+    if (p.a != fa_last) {
+      fa_last = p.a;
+      for (int k = 0; k < 3; ++k) ta[k] = X_BA * ma.vertices()[ma.triangles()[p.a][k]];
+    }
+    const Triangle& tb = mb.triangles()[p.b];
+    const auto& V = mb.vertices();
+    if (internal::TrianglesIntersect(ta[0], ta[1], ta[2], V[tb[0]], V[tb[1]], V[tb[2]])) {
+      return true;
+    }
+  }
+  return false;
+}
+
+bool Polish(PdgContext& c, Best* best) {
   constexpr double kPush = 1e-6;  // of the motion
   constexpr double kPull = 1e-9;
   constexpr int kRounds = 3;
   for (int round = 0;; ++round) {
     if (!(best->sigma > 0)) return true;
     bool opens_all = false, closes_one = false;
-    ClassifyAlongMotion(c, *best, *features, &opens_all, &closes_one);
+    ClassifyAlongMotion(c, *best, c.data.best_features, &opens_all, &closes_one);
     // The collision queries only where first order does not decide.
-    if (!opens_all && Colliding(c, AlongAnswer(c, best->X, 1 + kPush))) return false;
+    if (!opens_all && CollidingNear(c, *best, AlongAnswer(c, best->X, 1 + kPush),
+                                    kPush * MotionLength(c, c.X_WA, best->X))) {
+      return false;
+    }
     if (round == kRounds || closes_one) return true;
     const Pose X_in = AlongAnswer(c, best->X, 1 - kPull);
     Pose X_new;
     if (OutProjectFrom(c, X_in, &X_new) != Sweep::kHit || !(Sigma(c, Z(c, X_new)) < best->sigma)) {
       return true;
     }
-    Accept(c, X_new, best);
-    *features = c.data.ccd.features;
+    AcceptSwept(c, X_new, best);
   }
 }
 
@@ -607,10 +656,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     }
   };
   Pose X_coh;
-  if (CoherentStart(c, &X_coh)) {
-    Accept(c, X_coh, &best);
-    data->best_features = data->ccd.features;
-  }
+  if (CoherentStart(c, &X_coh)) AcceptSwept(c, X_coh, &best);
   if (!best.valid || request.pdg_always_pdt_start) {
     run_pdt();
     if (pdt_best.valid && pdt_best.sigma < best.sigma) {
@@ -714,12 +760,11 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
       status = PdStatus::kPenetratingSolved;  // no improvement: local optimum
       break;
     }
-    Accept(c, X_new, &best);
-    data->best_features = data->ccd.features;
+    AcceptSwept(c, X_new, &best);
   }
 
   // Verified answer: a contact along its own motion; else the PDt answer.
-  if (!Polish(c, &best, &data->best_features)) {
+  if (!Polish(c, &best)) {
     if (!pdt_done) run_pdt();
     if (pdt_best.valid) {
       best = pdt_best;

@@ -165,6 +165,7 @@ class PdgQueryData {
   CcdResult ccd;
   ProximityResult proximity;
   std::vector<FeaturePair> best_features;
+  std::vector<TrianglePair> best_pairs;     ///< triangle pairs near the best contact
   std::vector<FeaturePair> extra_features;  ///< a non-improving contact's pairs
   MetricQp qp;
 };

@@ -94,8 +94,8 @@ class RotationCache : public LastATriangle<RotationCache> {
       s_.rotated_b_model = B.uid();
       s_.rotated_R = X_BA.R;
       if (++s_.rotated_stamp == 0) {  // wrapped: forget every entry
-        for (auto* v :
-             {&s_.rotated_node_stamp, &s_.rotated_b_node_stamp, &s_.rotated_triangle_stamp}) {
+        for (auto* v : {&s_.rotated_node_stamp, &s_.rotated_b_node_stamp,
+                        &s_.rotated_triangle_stamp, &s_.rotated_vertex_stamp}) {
           std::fill(v->begin(), v->end(), 0u);
         }
         s_.rotated_stamp = 1;
@@ -104,11 +104,13 @@ class RotationCache : public LastATriangle<RotationCache> {
     Fit(A.bvh().nodes().size(), &s_.rotated_nodes, &s_.rotated_node_stamp);
     Fit(B.bvh().nodes().size(), &s_.rotated_b_nodes, &s_.rotated_b_node_stamp);
     Fit(A.mesh().triangles().size(), &s_.rotated_triangles, &s_.rotated_triangle_stamp);
+    Fit(A.mesh().vertices().size(), &s_.rotated_vertices, &s_.rotated_vertex_stamp);
   }
 
-  // A leaf's box on B's axes is the tight box of its rotated triangles
-  // (their corners are needed by the leaf tests anyway); an internal node's
-  // is the rotated box's. The tight box is often much smaller: a box turned
+  // A leaf's box on B's axes is the tight box of its rotated vertices
+  // (needed by the leaf tests anyway); an internal node's of up to
+  // kTightBoxTriangles triangles is the union of its children's, a larger
+  // one's the rotated box's. The tight box is often much smaller: a box turned
   // by R has an axis-aligned hull up to sqrt(3) times wider per axis.
   static constexpr Index kTightBoxTriangles = 64;
   const internal::RotatedBox& NodeA(const BvhNode& n) {
@@ -129,9 +131,11 @@ class RotationCache : public LastATriangle<RotationCache> {
                       return;
                     }
                     const auto& prims = A_.bvh().primitives();
-                    Vec3 lo = Rotated(prims[n.first]).v[0], hi = lo;
+                    const auto& tris = A_.mesh().triangles();
+                    Vec3 lo = RotatedVertex(tris[prims[n.first]][0]), hi = lo;
                     for (Index i = 0; i < n.count; ++i) {
-                      for (const Vec3& v : Rotated(prims[n.first + i]).v) {
+                      for (Index k : tris[prims[n.first + i]]) {
+                        const Vec3& v = RotatedVertex(k);
                         lo = lo.cwiseMin(v);
                         hi = hi.cwiseMax(v);
                       }
@@ -151,10 +155,14 @@ class RotationCache : public LastATriangle<RotationCache> {
     return Cached(f, &s_.rotated_triangles, &s_.rotated_triangle_stamp,
                   [&](QueryScratch::RotatedTriangle* o) {
                     const Triangle& t = A_.mesh().triangles()[f];
-                    const auto& V = A_.mesh().vertices();
-                    for (int k = 0; k < 3; ++k) o->v[k] = s_.rotated_R * V[t[k]];
+                    for (int k = 0; k < 3; ++k) o->v[k] = RotatedVertex(t[k]);
                     o->n = s_.rotated_R * A_.mesh().face_normals()[f];
                   });
+  }
+  // Each vertex is shared by about six triangles: rotated once.
+  const Vec3& RotatedVertex(Index i) {
+    return Cached(i, &s_.rotated_vertices, &s_.rotated_vertex_stamp,
+                  [&](Vec3* o) { *o = s_.rotated_R * A_.mesh().vertices()[i]; });
   }
   void Make(Index f, TriB* tri, Vec3* normal) {
     const QueryScratch::RotatedTriangle& r = Rotated(f);
@@ -680,7 +688,9 @@ bool CollectFeatures(const GeometryModel& A, const Pose& X_BA, const GeometryMod
   const bool has_nb = nb.squaredNorm() > 0, has_na = na.squaredNorm() > 0;
   const PlaneSides a_vs_b = has_nb ? Sides(nb, tb.v[0], ta, slack) : PlaneSides{{0, 0, 0}, false};
   const PlaneSides b_vs_a = has_na ? Sides(na, ta.v[0], tb, slack) : PlaneSides{{0, 0, 0}, false};
-  if (a_vs_b.far_all && b_vs_a.far_all) return true;
+  // One triangle wholly beyond the tolerance on one side of the other's
+  // plane: every feature of the other lies in that plane, so no pair is near.
+  if (a_vs_b.far_all || b_vs_a.far_all) return true;
   auto emit = [&](FeatureType type, Index a, Index b, const Vec3& pa, const Vec3& pb,
                   const Vec3& n_B) {
     if (out->size() >= request.max_pairs) return false;
@@ -697,7 +707,7 @@ bool CollectFeatures(const GeometryModel& A, const Pose& X_BA, const GeometryMod
     return true;
   };
   // Vertex of A against face of B.
-  if (has_nb && !a_vs_b.far_all) {
+  if (has_nb) {
     for (int k = 0; k < 3; ++k) {
       if (!(own_a & (1u << k)) || std::abs(a_vs_b.s[k]) > slack) continue;
       const Vec3 q = internal::ClosestPointOnTriangle(ta.v[k], tb.v[0], tb.v[1], tb.v[2], nullptr);
@@ -709,7 +719,7 @@ bool CollectFeatures(const GeometryModel& A, const Pose& X_BA, const GeometryMod
     }
   }
   // Face of A against vertex of B.
-  if (has_na && !b_vs_a.far_all) {
+  if (has_na) {
     for (int k = 0; k < 3; ++k) {
       if (!(own_b & (1u << k)) || std::abs(b_vs_a.s[k]) > slack) continue;
       const Vec3 p = internal::ClosestPointOnTriangle(tb.v[k], ta.v[0], ta.v[1], ta.v[2], nullptr);
@@ -721,7 +731,6 @@ bool CollectFeatures(const GeometryModel& A, const Pose& X_BA, const GeometryMod
     }
   }
   // Edge of A against edge of B.
-  if (a_vs_b.far_all || b_vs_a.far_all) return true;
   for (int i = 0; i < 3; ++i) {
     if (!(own_a & (1u << (3 + i))) || SegmentFar(a_vs_b, i, slack)) continue;
     const Vec3& a0 = ta.v[i];
@@ -890,6 +899,7 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   result->toi = 1;
   result->iterations = 0;
   result->start_colliding = false;
+  result->near_pairs.clear();
   const Pose X_BA = X_WB.Inverse() * X_WA0;
   const Vec3 d_B = X_WB.R.transpose() * d_W;
   bool start_crossing = false;
@@ -1085,6 +1095,11 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   result->X_WA_contact.t += result->toi * d_W;
   result->features.clear();
   result->features_truncated = false;
+  if (hit && feature_tol > 0 && request.near_pairs) {
+    for (const QueryScratch::KeyedPair& p : visited) {
+      if (p.key <= result->toi) result->near_pairs.push_back({p.a, p.b});
+    }
+  }
   if (hit && feature_tol > 0) {
     const Pose X_BAc{X_BA.R, X_BA.t + result->toi * d_B};
     ATriangleCache a_tris_c(ma, X_BAc);

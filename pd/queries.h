@@ -38,9 +38,9 @@ struct QueryScratch {
   std::uint64_t node_tests = 0;
   std::uint64_t triangle_tests = 0;
 
-  /// Translational CCD: A's BVH boxes and triangles rotated into B's frame
-  /// (and B's boxes onto A's axes),
-  /// computed lazily, once per node and triangle, and kept for every later
+  /// Translational CCD: A's BVH boxes, triangles and vertices rotated into
+  /// B's frame (and B's boxes onto A's axes), computed lazily, once per
+  /// node, triangle and vertex, and kept for every later
   /// sweep of the same models under the same rotation (a PDt query's sweeps
   /// all share one). An entry is valid when its stamp equals
   /// `rotated_stamp`; a new model or rotation bumps the stamp.
@@ -54,6 +54,8 @@ struct QueryScratch {
   std::vector<std::uint32_t> rotated_b_node_stamp;
   std::vector<RotatedTriangle> rotated_triangles;
   std::vector<std::uint32_t> rotated_triangle_stamp;
+  std::vector<Vec3> rotated_vertices;  ///< R_BA * vertex (leaf boxes, triangles)
+  std::vector<std::uint32_t> rotated_vertex_stamp;
   std::uint32_t rotated_stamp = 0;
   std::uint64_t rotated_model = 0;    ///< GeometryModel::uid() of A, 0: none
   std::uint64_t rotated_b_model = 0;  ///< and of B
@@ -192,6 +194,13 @@ struct CcdRequest {
   /// is much cheaper than a separate Collide. When the start overlaps, the
   /// query stops with `start_colliding` set and no time of impact.
   bool check_start = false;
+  /// Translational CCD only, with a feature tolerance: on a hit also list in
+  /// CcdResult::near_pairs every triangle pair whose boxes, inflated by the
+  /// feature tolerance, meet by the time of impact. Every triangle pair
+  /// closer than feature_tolerance at the contact is among them, so a motion
+  /// of the contact pose by less than that distance can only make those
+  /// pairs cross (PDg checks its answers with it instead of a Collide).
+  bool near_pairs = false;
 };
 
 struct CcdResult {
@@ -203,6 +212,7 @@ struct CcdResult {
   int iterations = 0;  ///< conservative-advancement steps (rigid CCD)
   /// With CcdRequest::check_start: A overlaps B at t = 0 (then hit is false).
   bool start_colliding = false;
+  std::vector<TrianglePair> near_pairs;  ///< with CcdRequest::near_pairs, on a hit
 };
 
 /// Exact translational CCD: A moves from X_WA0 by the world displacement
