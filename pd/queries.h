@@ -68,7 +68,7 @@ struct QueryScratch {
   /// recurring places: the query pose, the previous answer's contact space),
   /// and one crossing settles such a query. The answer is the same either
   /// way; only the work differs.
-  static constexpr int kWitnesses = 4;
+  static constexpr int kWitnesses = 16;
   std::array<std::pair<Index, Index>, kWitnesses> witnesses{};
   int witness_count = 0;
   int witness_next = 0;               ///< ring position of the next entry
