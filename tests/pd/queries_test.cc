@@ -539,6 +539,71 @@ TEST(TranslationalCcd, StartCheckAgreesWithFclAndKeepsTheTimeOfImpact) {
   EXPECT_TRUE(checked.start_colliding);
 }
 
+TEST(TranslationalCcd, NearPairsHoldEveryTrianglePairWithinTheToleranceAtContact) {
+  // PDg checks its answers against these pairs instead of a full collision
+  // query: every triangle pair closer than the feature tolerance at the
+  // contact must be listed (brute force over all pairs of the two meshes).
+  const ModelPtr a = MakeModel(shapes::Spoon());
+  const ModelPtr b = MakeModel(shapes::Cup());
+  const Mesh& ma = a->mesh();
+  const Mesh& mb = b->mesh();
+  std::mt19937_64 rng(testing::TestSeed() + 5);
+  std::normal_distribution<double> n(0, 1);
+  QueryScratch s;
+  CcdResult r;
+  CcdRequest req;
+  const double tol = 1e-3 * mb.size();
+  req.feature_tolerance = tol;
+  req.near_pairs = true;
+  const int count = testing::TestCount(12);
+  int hits = 0;
+  std::size_t most_within = 0;
+  for (int i = 0; i < count; ++i) {
+    Pose X0 = NearSurfacePose(*a, *b, rng, 0.01);
+    const Vec3 d =
+        ((mb.bounds().Center() - X0.t).normalized() + 0.3 * Vec3(n(rng), n(rng), n(rng))) * 0.05;
+    if (!TranslationalCcd(*a, X0, d, *b, Pose::Identity(), req, &r, &s)) continue;
+    ++hits;
+    std::set<std::pair<Index, Index>> listed;
+    for (const TrianglePair& p : r.near_pairs) listed.insert({p.a, p.b});
+    std::size_t within = 0;
+    for (Index fa = 0; fa < static_cast<Index>(ma.num_triangles()); ++fa) {
+      std::array<Vec3, 3> ta;
+      for (int k = 0; k < 3; ++k) ta[k] = r.X_WA_contact * ma.vertices()[ma.triangles()[fa][k]];
+      const Vec3 lo = ta[0].cwiseMin(ta[1]).cwiseMin(ta[2]).array() - tol;
+      const Vec3 hi = ta[0].cwiseMax(ta[1]).cwiseMax(ta[2]).array() + tol;
+      for (Index fb = 0; fb < static_cast<Index>(mb.num_triangles()); ++fb) {
+        const auto& V = mb.vertices();
+        const Triangle& tb = mb.triangles()[fb];
+        const Vec3 blo = V[tb[0]].cwiseMin(V[tb[1]]).cwiseMin(V[tb[2]]);
+        const Vec3 bhi = V[tb[0]].cwiseMax(V[tb[1]]).cwiseMax(V[tb[2]]);
+        if ((blo.array() > hi.array()).any() || (lo.array() > bhi.array()).any()) continue;
+        const double d2 =
+            internal::ClosestTriangleTriangle(ta[0], ta[1], ta[2], V[tb[0]], V[tb[1]], V[tb[2]])
+                .dist_sq;
+        if (d2 > tol * tol) continue;
+        ++within;
+        EXPECT_TRUE(listed.count({fa, fb})) << "sweep " << i << ": pair (" << fa << ", " << fb
+                                            << ") at " << std::sqrt(d2) << " m not listed";
+      }
+    }
+    EXPECT_GE(listed.size(), within);
+    most_within = std::max(most_within, within);
+  }
+  EXPECT_GT(hits, count / 4);
+  EXPECT_GT(most_within, 1u);  // contacts with several nearby pairs were met
+  // Not asked for: none listed.
+  req.near_pairs = false;
+  for (int i = 0; i < 20; ++i) {
+    Pose X0 = NearSurfacePose(*a, *b, rng, 0.01);
+    const Vec3 d = (mb.bounds().Center() - X0.t).normalized() * 0.05;
+    if (TranslationalCcd(*a, X0, d, *b, Pose::Identity(), req, &r, &s)) {
+      EXPECT_TRUE(r.near_pairs.empty());
+      break;
+    }
+  }
+}
+
 TEST(RigidCcd, ConservativeAdvancementStopsAtContact) {
   const ModelPtr a = MakeModel(shapes::Hammer());
   const ModelPtr b = MakeModel(shapes::Torus());
