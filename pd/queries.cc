@@ -1009,18 +1009,24 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
         // best-first order and are all met: the start check lives here
         // (after the plane filter above: a triangle strictly on one side of
         // the other's plane at t = 0 does not cross it).
-        if (request.check_start && key <= 0 &&
-            internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
-          start_crossing = true;
-          RememberWitness(A, B, fa, fb, scratch);
-          return false;
-        }
         if (na.squaredNorm() > 0) {
           const double shift = -t_best * na.dot(d_B);
           for (int k = 0; k < 3; ++k) {
             sb[k] = na.dot(tb.v[k] - ta.v[0]);
             b_side[k] = StaysSide(sb[k], shift, margin);
           }
+        }
+        // The same plane filters at t = 0 alone spare most start pairs the
+        // exact test.
+        auto apart = [&](const std::array<double, 3>& v) {
+          return (v[0] > margin && v[1] > margin && v[2] > margin) ||
+                 (v[0] < -margin && v[1] < -margin && v[2] < -margin);
+        };
+        if (request.check_start && key <= 0 && !apart(sa) && !apart(sb) &&
+            internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
+          start_crossing = true;
+          RememberWitness(A, B, fa, fb, scratch);
+          return false;
         }
         auto edge_stays = [](const std::array<bool, 3>& side, const std::array<double, 3>& sv,
                              int i) {
