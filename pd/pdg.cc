@@ -1,12 +1,12 @@
 #include "pd/pdg.h"
 
-#include "pd/primitives.h"
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
 #include <string>
+
+#include "pd/primitives.h"
 
 namespace hapticpd::pd {
 
