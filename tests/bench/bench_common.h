@@ -4,6 +4,7 @@
 #pragma once
 
 #include <algorithm>
+#include <chrono>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
@@ -14,6 +15,7 @@
 
 #include "client/bench/scenarios.h"
 #include "pd/penetration.h"
+#include "tests/oracles/fcl_oracle.h"
 
 namespace hapticpd::bench {
 
@@ -125,6 +127,22 @@ std::vector<Summary> ReplayAll(BenchRun* run, Replay replay, Report report,
     }
   }
   return summaries;
+}
+
+/// Times FCL's mesh-mesh collide with all contacts on every frame's pose of
+/// `b` (the peer the PD benchmarks compare with, measured in the same run):
+/// each record's `us` (µs) and `contacts`. `records` has one entry a frame.
+template <class Record>
+void TimeFclAllContacts(const Benchmark& b, const Pose& X_WB, std::vector<Record>* records,
+                        double Record::*us, int Record::*contacts) {
+  const hapticpd::testing::FclModel fcl_probe(b.probe->mesh()), fcl_scene(b.scene->mesh());
+  for (std::size_t i = 0; i < b.frames.size(); ++i) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const int n = hapticpd::testing::FclContacts(fcl_probe, b.frames[i].X_WA, fcl_scene, X_WB);
+    const auto t1 = std::chrono::steady_clock::now();
+    (*records)[i].*us = Us(t0, t1);
+    (*records)[i].*contacts = n;
+  }
 }
 
 /// Indices of the `k` records with the largest time `us` (µs), slowest first.

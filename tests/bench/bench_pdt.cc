@@ -33,7 +33,6 @@
 #include "pd/queries.h"
 #include "pd/shapes.h"
 #include "tests/bench/bench_common.h"
-#include "tests/oracles/fcl_oracle.h"
 
 namespace hp = hapticpd;
 namespace pd = hapticpd::pd;
@@ -132,14 +131,7 @@ Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
       (*records)[i].escape = hit ? far * (1 - ccd.toi) : 0.0;
     }
   }
-  const hp::testing::FclModel fcl_probe(b.probe->mesh()), fcl_scene(b.scene->mesh());
-  for (std::size_t i = 0; i < b.frames.size(); ++i) {
-    const auto t0 = std::chrono::steady_clock::now();
-    const int n = hp::testing::FclContacts(fcl_probe, b.frames[i].X_WA, fcl_scene, X_WB);
-    const auto t1 = std::chrono::steady_clock::now();
-    (*records)[i].fcl_us = Us(t0, t1);
-    (*records)[i].fcl_contacts = n;
-  }
+  hp::bench::TimeFclAllContacts(b, X_WB, records, &FrameRecord::fcl_us, &FrameRecord::fcl_contacts);
 
   Summary s;
   hp::bench::BeginSummary(b, records->size(), &s);
