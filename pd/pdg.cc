@@ -479,8 +479,9 @@ void AcceptSwept(PdgContext& c, const Pose& X, Best* best) {
 // Free start from the SE(3) coherence cache: the two cached poses nearest to
 // the query (object norm); a cached contact is pushed out a little further
 // along its own motion, a cached free pose is used as is; the first that is
-// free now is out-projected towards the query pose.
-bool CoherentStart(PdgContext& c, Pose* X_contact) {
+// free now is out-projected towards the query pose. *cached_sigma: the
+// sigma of the cached answer the start came from (0 for a cached free pose).
+bool CoherentStart(PdgContext& c, Pose* X_contact, double* cached_sigma) {
   PdgQueryData& d = c.data;
   if (!c.request.use_coherence || d.coherence_size_ == 0) return false;
   // The two entries nearest to the query pose under the object norm.
@@ -495,6 +496,7 @@ bool CoherentStart(PdgContext& c, Pose* X_contact) {
                     [&](int x, int y) { return dist[x] < dist[y]; });
   for (int k = 0; k < tries; ++k) {
     const PdgQueryData::CoherenceEntry& e = d.coherence[order[k]];
+    *cached_sigma = e.contact ? e.sigma : 0.0;
     if (!e.contact) {
       const Sweep s = OutProjectFrom(c, e.X_BA_query, X_contact);
       if (s != Sweep::kStartColliding) return s == Sweep::kHit;
@@ -631,7 +633,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   };
 
   if (!Colliding(c, X_WA)) {
-    if (request.use_coherence) data->Remember({X_WA, X_WA, Vec6::Zero(), false});
+    if (request.use_coherence) data->Remember({X_WA, X_WA, Vec6::Zero(), false, 0.0});
     // Keep PDt's coherence in step when it runs every query.
     if (request.pdg_always_pdt_start) {
       ComputePdt(A, X_WA, B, X_WB, request, &data->pdt, &data->pdt_result);
@@ -656,8 +658,20 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     }
   };
   Pose X_coh;
-  if (CoherentStart(c, &X_coh)) AcceptSwept(c, X_coh, &best);
-  if (!best.valid || request.pdg_always_pdt_start) {
+  double cached_sigma = 0;
+  if (CoherentStart(c, &X_coh, &cached_sigma)) AcceptSwept(c, X_coh, &best);
+  // A coherent start much deeper than the answer it came from has lost that
+  // answer's basin (the probe jumped, or the cached contact's way out closed
+  // up): PDt's answer is tried too, else PDg can end far above PDt (up to
+  // 1.6x on the hammer-vs-beast benchmark) and stay there for the frames
+  // that follow. PDt starts cold then: its own coherence cache is as old as
+  // its last run, and from there it found the same worse basin (9 of the
+  // benchmark's 14 frames above PDt stayed above).
+  const double slack = 0.01 * A.mesh().size();
+  const bool lost_basin =
+      best.valid && std::sqrt(best.sigma) > 1.2 * std::sqrt(cached_sigma) + slack;
+  if (lost_basin && !request.pdg_always_pdt_start) data->pdt.ResetCoherence();
+  if (!best.valid || request.pdg_always_pdt_start || lost_basin) {
     run_pdt();
     if (pdt_best.valid && pdt_best.sigma < best.sigma) {
       best = pdt_best;
@@ -783,7 +797,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   for (const FeaturePair& f : data->best_features) {
     result->features.push_back({f.type, f.a, f.b, f.p_WB, f.n_W});
   }
-  if (request.use_coherence) data->Remember({X_WA, best.X, best.z, true});
+  if (request.use_coherence) data->Remember({X_WA, best.X, best.z, true, best.sigma});
   finish(status);
 }
 

@@ -151,6 +151,7 @@ class PdgQueryData {
     Pose X_BA_answer;       ///< its answer (== query for a free pose)
     Vec6 z = Vec6::Zero();  ///< the answer's configuration relative to its query
     bool contact = false;
+    double sigma = 0;  ///< the answer's sigma (0 for a free pose)
   };
   static constexpr int kCoherenceSlots = 8;
   std::array<CoherenceEntry, kCoherenceSlots> coherence;

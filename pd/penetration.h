@@ -72,8 +72,10 @@ struct PenetrationRequest {
   int cold_start_directions = 13;
   /// PDg only: run PDt on every query and start from the better of its answer
   /// and the motion-coherent start (default: PDt only when coherence gives no
-  /// start). Guarantees sqrt(sigma) <= |PDt| on every query at the price of a
-  /// PDt; without coherence (use_coherence false) it always holds.
+  /// start, or a start much deeper than the cached answer it came from: more
+  /// than 1.2 times its depth plus 1% of the probe's size). Guarantees
+  /// sqrt(sigma) <= |PDt| on every query at the price of a PDt; without
+  /// coherence (use_coherence false) it always holds.
   bool pdg_always_pdt_start = false;
   /// PDg only: the probe's principal moments of inertia about its centre of
   /// mass divided by its mass (m^2), along the body frame's axes

@@ -212,7 +212,8 @@ int main(int argc, char** argv) {
   std::cout
       << "pen = frames PDg finds penetrating; iters, contacts = means over those; rot% = "
          "share of those whose answer rotates; t ratio = PDg p50 / PDt p50 (PDg runs PDt "
-         "itself only when motion coherence gives no start); s med / s min = median / "
+         "itself only when motion coherence gives no start or a start that lost its basin); s med "
+         "/ s min = median / "
          "minimum of sigma(PDg) / |PDt|^2; >PDt = "
          "answers above PDt; !cont = answers not a contact along their own motion; FCL = FCL's "
          "mesh-mesh collide with all contacts on the same poses, p99/FCL = PDg p99 / FCL "

@@ -17,6 +17,7 @@
 #include <random>
 #include <vector>
 
+#include "client/bench/scenarios.h"
 #include "pd/scene_pd.h"
 #include "pd/shapes.h"
 #include "tests/alloc_counter.h"
@@ -702,6 +703,38 @@ TEST(PdgCoherence, CoherentStartsAreVerifiedAndCloseToPdtOrBetter) {
   EXPECT_LT(st.sum_pdg, st.sum_pdt);
   EXPECT_LE(st.above_pdt, st.frames / 5);
   EXPECT_LT(st.worst_ratio, 1.5);
+}
+
+// bench_pdg's hammer-vs-beast trajectory: at frame 1120 the coherent start
+// (the previous answer, pushed out and swept back) comes out half as deep
+// again as the answer it came from, in a worse basin; followed as is, PDg
+// ended up to 1.6 times PDt's depth on frames 1120-1128 and stayed there.
+// Such a start is now compared with PDt's answer. Replays the frames up to
+// the episode (coherence depends on the history) with PDt alongside, as the
+// benchmark does; from frame 1100 on every answer is verified with FCL and
+// must not exceed PDt.
+TEST(PdgCoherence, AStartThatLostItsBasinIsComparedWithPdt) {
+  HAPTICPD_REQUIRE_MODEL(path, "beast.obj");
+  std::vector<bench::Benchmark> benchmarks = bench::BuildBenchmarks(path.parent_path().string());
+  bench::Benchmark& b = benchmarks.at(2);
+  ASSERT_EQ(b.name, "hammer-beast20k");
+  bench::MakeTrajectory(&b, 2000);
+  const FclModel fa(b.probe->mesh()), fb(b.scene->mesh());
+  const PenetrationRequest request;
+  PdgQueryData data;
+  PdQueryData pdt_data;
+  PenetrationResult r, pdt;
+  int checked = 0;
+  for (std::size_t i = 0; i <= 1135; ++i) {
+    const Pose& X_WA = b.frames[i].X_WA;
+    ComputePdg(*b.probe, X_WA, *b.scene, Pose::Identity(), request, &data, &r);
+    ComputePdt(*b.probe, X_WA, *b.scene, Pose::Identity(), request, &pdt_data, &pdt);
+    if (i < 1100 || r.status == PdStatus::kSeparated) continue;
+    SCOPED_TRACE(i);
+    ++checked;
+    ExpectVerifiedPdg(*b.probe, X_WA, Pose::Identity(), fa, fb, r, pdt.depth, request);
+  }
+  EXPECT_GT(checked, 30);
 }
 
 TEST(PdgAllocation, NoHeapAllocationAfterWarmUp) {
