@@ -48,25 +48,20 @@ TEST(DeviceE2e, ThinPlateForceNeverFlipsInside) {
   sp.travel = 0.08;
   sp.duration_s = 2.5;
   rig.Connect(sp);
-  // A tick the machine delays by 3 ms or more (under TSan on 2 busy cores:
+  // A tick the machine delays by over 3 ms (under TSan on 2 busy cores:
   // one CI run pulled the hand down by 33 mN inside the plate) lets the
   // simulated hand move on in real time while the proxy takes one step: the
   // coupling stretches and its damper tugs for a few tens of ms. The check
-  // of the force on the hand skips the ticks of that window (as the session
-  // test does); the contact force on the proxy and the proxy's side of the
-  // plate are checked on every tick.
-  constexpr int kSettleTicks = 30;
-  testing::TickGap gap;
-  int since_late = kSettleTicks, late_ticks = 0, settling = 0;
+  // of the force on the hand skips the ticks of that window
+  // (testing::LateTickWindow, as the session test does); the contact force on the proxy and the
+  // proxy's side of the plate are checked on every tick.
+  testing::LateTickWindow late_window;
+  int settling = 0;
   int inside = 0, below = 0;
   double max_fz = 0, min_fz_inside = 1e9, min_proxy_z = 1e9, min_handle_z = 1e9;
   double min_contact_fz = 1e9;
   RunTicks(*rig.loop, 2600, [&](const TickRecord& r) {
-    if (gap(r) > 3e-3) {
-      since_late = 0;
-      ++late_ticks;
-    }
-    const bool after_late = since_late++ < kSettleTicks;
+    const bool after_late = late_window(r);
     const double fz = r.F_cmd_D.force.z();  // on the hand: +z pushes back up
     max_fz = std::max(max_fz, fz);
     min_contact_fz = std::min(min_contact_fz, r.W_ir.head<3>().z());  // on the proxy (W)
@@ -93,9 +88,9 @@ TEST(DeviceE2e, ThinPlateForceNeverFlipsInside) {
   // plate: the proxy stays on the top side, so the push is always up. (The
   // coupling damper may tug by at most b v as the hand turns back up; 1 mN
   // is far under that bound's typical size and under anything felt.)
-  EXPECT_GT(min_fz_inside, -1e-3) << late_ticks << " ticks delayed by over 3 ms";
+  EXPECT_GT(min_fz_inside, -1e-3) << late_window.late_ticks() << " ticks delayed by over 3 ms";
   EXPECT_GT(inside - settling, inside / 10)
-      << "too many delayed ticks for the check to mean much (" << late_ticks << ")";
+      << "too many delayed ticks for the check to mean much (" << late_window.late_ticks() << ")";
   // The contact itself pushes the proxy up (+z) or not at all, on every tick.
   EXPECT_GE(min_contact_fz, 0.0);
   EXPECT_GT(min_proxy_z, 0.0) << "the proxy popped through the plate";

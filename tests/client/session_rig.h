@@ -123,6 +123,32 @@ class TickGap {
   std::int64_t prev_ns_ = 0;
 };
 
+/// Whether a tick lies within `settle` ticks of one the machine delayed by
+/// more than `late_s` (that one included): there the simulated hand has moved
+/// on in real time while the proxy took one step, and the coupling stretches
+/// and tugs for a few tens of ms. Fed every tick record in order; counts the
+/// delayed ticks.
+class LateTickWindow {
+ public:
+  explicit LateTickWindow(int settle = 30, double late_s = 3e-3)
+      : settle_(settle), late_s_(late_s), since_late_(settle) {}
+  bool operator()(const device::TickRecord& r) {
+    if (gap_(r) > late_s_) {
+      since_late_ = 0;
+      ++late_ticks_;
+    }
+    return since_late_++ < settle_;
+  }
+  int late_ticks() const { return late_ticks_; }
+
+ private:
+  TickGap gap_;
+  int settle_;
+  double late_s_;
+  int since_late_;
+  int late_ticks_ = 0;
+};
+
 /// Ticks `loop` at 1 kHz on the steady clock for `ticks` ticks (or until
 /// `each` returns false).
 inline void RunTicks(device::ServoLoop& loop, int ticks,
