@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <utility>
 
 #include "pd/primitives.h"
 
@@ -472,7 +473,9 @@ void Accept(PdgContext& c, const Pose& X, Best* best) {
 void AcceptSwept(PdgContext& c, const Pose& X, Best* best) {
   Accept(c, X, best);
   c.data.best_features = c.data.ccd.features;
-  c.data.best_pairs = c.data.ccd.near_pairs;
+  // Swapped, not copied (thousands of pairs at a deep contact): the next
+  // sweep clears ccd.near_pairs before filling it.
+  std::swap(c.data.best_pairs, c.data.ccd.near_pairs);
   best->near_pairs = true;
 }
 

@@ -257,11 +257,14 @@ struct PlaneSides {
   std::array<double, 3> s;
   bool far_all = false;
 };
+// All three signed distances beyond `tol` on the same side.
+inline bool AllBeyond(const std::array<double, 3>& s, double tol) {
+  return (s[0] > tol && s[1] > tol && s[2] > tol) || (s[0] < -tol && s[1] < -tol && s[2] < -tol);
+}
 inline PlaneSides Sides(const Vec3& n, const Vec3& o, const TriB& t, double tol) {
   PlaneSides p;
   for (int k = 0; k < 3; ++k) p.s[k] = n.dot(t.v[k] - o);
-  p.far_all = (p.s[0] > tol && p.s[1] > tol && p.s[2] > tol) ||
-              (p.s[0] < -tol && p.s[1] < -tol && p.s[2] < -tol);
+  p.far_all = AllBeyond(p.s, tol);
   return p;
 }
 inline bool SegmentFar(const PlaneSides& p, int i, double tol) {
@@ -1018,11 +1021,7 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
         }
         // The same plane filters at t = 0 alone spare most start pairs the
         // exact test.
-        auto apart = [&](const std::array<double, 3>& v) {
-          return (v[0] > margin && v[1] > margin && v[2] > margin) ||
-                 (v[0] < -margin && v[1] < -margin && v[2] < -margin);
-        };
-        if (request.check_start && key <= 0 && !apart(sa) && !apart(sb) &&
+        if (request.check_start && key <= 0 && !AllBeyond(sa, margin) && !AllBeyond(sb, margin) &&
             internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
           start_crossing = true;
           RememberWitness(A, B, fa, fb, scratch);
