@@ -170,21 +170,31 @@ TEST(DeviceE2e, StalledUpdateStreamFadesAndRecovers) {
     return !back;
   });
   // The stall as the loop saw it: it began at tick 0 (the last answer came
-  // before) and ends with the first IR after it.
-  const std::size_t gap_begin = 0;
+  // before) and ends with the first IR after it. Measured on the loop's
+  // clock, not in ticks: RunTicks does not catch up after a tick the
+  // machine delayed (TSan on a loaded runner), so 200 ms may hold fewer
+  // than 200 ticks.
+  auto ms_since_begin = [&](std::size_t i) {
+    return 1e-6 * static_cast<double>(seen[i].time_ns - seen[0].time_ns);
+  };
   std::size_t gap_end = 0;
   while (gap_end < seen.size() && !seen[gap_end].new_ir) ++gap_end;
-  ASSERT_GE(gap_end, 150u) << "no stall seen; withheld " << rig.session->stats().withheld_updates;
   ASSERT_LT(gap_end, seen.size()) << "answers never came back";
-  // Within 50 ticks of the last answer the commanded force is below 1 mN
+  ASSERT_GE(ms_since_begin(gap_end), 150.0) << "no stall seen (" << gap_end << " ticks); withheld "
+                                            << rig.session->stats().withheld_updates;
+  // From 50 ms after the last answer the commanded force is below 1 mN
   // (stale at 20 ms, faded over the next 20 ms; see the server-loss test
   // for the threshold) and stays there until answers come again.
   double max_in_gap = 0;
-  for (std::size_t i = gap_begin + 50; i < gap_end; ++i) {
+  std::size_t checked = 0;
+  for (std::size_t i = 0; i < gap_end; ++i) {
+    if (ms_since_begin(i) < 50.0) continue;
     max_in_gap = std::max(max_in_gap, seen[i].force);
+    ++checked;
   }
-  EXPECT_LT(max_in_gap, 1e-3) << "force during the stall (ticks " << gap_begin << "-" << gap_end
-                              << ")";
+  EXPECT_GT(checked, 50u) << "too few ticks in the stall to judge it";
+  EXPECT_LT(max_in_gap, 1e-3) << "force during the stall (ticks 0-" << gap_end << ", "
+                              << ms_since_begin(gap_end) << " ms)";
   EXPECT_EQ(seen[gap_end - 1].link, 0.0);
   // And then it recovers, ramped rather than stepped.
   EXPECT_TRUE(back) << "contact force did not come back after the stall";
@@ -201,7 +211,9 @@ TEST(DeviceE2e, StalledUpdateStreamFadesAndRecovers) {
   }
   EXPECT_LT(worst, 1.0) << "a force step beyond 15% of the force per on-time tick";
   const client::SessionStats st = rig.session->stats();
-  EXPECT_GT(st.withheld_updates, 50u);
+  // The server kept answering through the stall (about 1 kHz in release;
+  // TSan on a loaded runner was seen at 35 in 200 ms).
+  EXPECT_GT(st.withheld_updates, 10u) << "the server stopped answering during the stall";
   EXPECT_EQ(st.connects, 1u) << "a stall is not a disconnect";
   EXPECT_EQ(st.disconnects, 0u);
 }
