@@ -7,6 +7,7 @@
 #include <array>
 #include <cerrno>
 #include <cmath>
+#include <cstdint>
 #include <cstdlib>
 #include <iomanip>
 #include <iostream>
@@ -43,6 +44,7 @@ struct PdOptions {
   std::string rotational_stiffness = "0.05";
   std::string epsilon;
   std::string max_iterations;
+  std::string pdg_budget = "0";
 };
 
 std::string Fmt(double x) {
@@ -80,6 +82,18 @@ int ParsePositiveInt(const std::string& option, const std::string& text) {
                        "'");
   }
   return static_cast<int>(v);
+}
+
+std::uint64_t ParseBudget(const std::string& option, const std::string& text) {
+  char* end = nullptr;
+  errno = 0;
+  const long long v = std::strtoll(text.c_str(), &end, 10);
+  if (text.empty() || end != text.c_str() + text.size() || errno == ERANGE || v < 0 ||
+      v > 1'000'000'000'000LL) {
+    throw CommandError(option + ": must be a non-negative integer (0 for no budget), got '" + text +
+                       "'");
+  }
+  return static_cast<std::uint64_t>(v);
 }
 
 /// "tx ty tz qw qx qy qz" (whitespace or commas between numbers): a world
@@ -166,6 +180,9 @@ void RunPd(const PdOptions& o) {
   if (!o.max_iterations.empty()) {
     request.max_iterations = ParsePositiveInt("--max-iterations", o.max_iterations);
   }
+  // A one-shot query has no next query to carry a budgeted optimisation on:
+  // no budget unless asked for.
+  request.pdg_iteration_budget = ParseBudget("--pdg-budget", o.pdg_budget);
   const Pose X_WA = ParsePose("--pose", o.pose);
   const Quat q_WA(X_WA.R);
   std::vector<Pose> X_WB(o.scenes.size(), Pose::Identity());
@@ -359,6 +376,13 @@ void RegisterPd(CLI::App& app) {
   cmd->add_option("--max-iterations", opts->max_iterations,
                   "Cap on projection iterations per body (default 12)")
       ->type_name("N");
+  cmd->add_option("--pdg-budget", opts->pdg_budget,
+                  "PDg: work budget of the iterations in box and triangle pair tests, 0 for "
+                  "none (the servo loop's queries use " +
+                      std::to_string(pd::PenetrationRequest{}.pdg_iteration_budget) +
+                      "; a one-shot query has no next query to carry the optimisation on)")
+      ->type_name("N")
+      ->capture_default_str();
   cmd->footer(
       "Each scene body gets its own PD query. The top-level depth, translation (world frame) "
       "and result_pose (the probe's file-frame pose at the answer: pose translated by "

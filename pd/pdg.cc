@@ -697,7 +697,22 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   Pose X_extra;
   Vec6 z_extra = Vec6::Zero();
   int retries = 0;
+  // The work budget: box and triangle pair tests of this query's traversals
+  // (PDt's inside it included) since the iterations began.
+  auto work = [&] {
+    return data->scratch.node_tests + data->scratch.triangle_tests + data->pdt.scratch.node_tests +
+           data->pdt.scratch.triangle_tests;
+  };
+  const std::uint64_t work_start = work();
+  std::uint64_t work_it = work_start, costliest = 0;
   for (int it = 0; it < request.max_iterations; ++it) {
+    const std::uint64_t now = work();
+    costliest = std::max(costliest, now - work_it);
+    work_it = now;
+    if (request.pdg_iteration_budget > 0 &&
+        now - work_start + costliest > request.pdg_iteration_budget) {
+      break;  // the next iteration would likely overrun: cap reached
+    }
     result->iterations = it + 1;
     if (best.sigma <= 0) {
       status = PdStatus::kPenetratingSolved;
@@ -789,14 +804,16 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     }
   }
 
-  const Vec3 v = best.z.head<3>();
-  const double vn = v.norm();
   result->sigma = best.sigma;
   result->depth = std::sqrt(best.sigma);
   result->translation_W = R_WAb0 * best.z.tail<3>();
   result->X_WA_result = best.X;
-  result->rotation_angle = 2 * std::atan2(vn, std::sqrt(std::max(0.0, 1 - vn * vn)));
-  if (vn > 0) result->rotation_axis_W = R_WAb0 * (v / vn);
+  // Angle and axis from the whole quaternion of the relative rotation: from
+  // z's vector part alone (w = sqrt(1 - |v|^2)) the angle near 180 degrees
+  // is only good to about 1e-8.
+  const Eigen::AngleAxisd aa(Quat(best.X.R * X_WA.R.transpose()));
+  result->rotation_angle = aa.angle();
+  if (aa.angle() > 0) result->rotation_axis_W = aa.axis();
   for (const FeaturePair& f : data->best_features) {
     result->features.push_back({f.type, f.a, f.b, f.p_WB, f.n_W});
   }

@@ -175,7 +175,8 @@ class PdgQueryData {
 /// kGeneralized; conventions above and in pd/penetration.h). Uses request
 /// fields like ComputePdt (contact_epsilon, max_iterations,
 /// improvement_tolerance, use_coherence, cold_start_directions for the PDt
-/// start) and principal_inertia_over_mass for its metric (PdgMetricDiagonal;
+/// start), pdg_iteration_budget (a work bound on the iterations) and
+/// principal_inertia_over_mass for its metric (PdgMetricDiagonal;
 /// result.sigma is measured in it); compute_regions and region_radius are
 /// ignored. A non-finite or non-positive inertia override fails (kFailed).
 void ComputePdg(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,

@@ -813,8 +813,10 @@ double Distance(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B
     stack.pop_back();
     const BvhNode& na = NA[ia];
     const BvhNode& nb = NB[ib];
+    ++scratch->node_tests;
     if (internal::BoxesDistanceLowerBound(frame, na, nb) >= best) continue;
     if (na.leaf() && nb.leaf()) {
+      scratch->triangle_tests += static_cast<std::uint64_t>(na.count) * nb.count;
       for (Index i = 0; i < na.count; ++i) {
         const Index fa = PA[na.first + i];
         const TriB ta = TriangleOfA(ma, X_BA, fa);

@@ -67,6 +67,13 @@ std::vector<Setting> Settings(pd::PdMode mode, bool convex) {
     pd::PenetrationRequest r = base;
     r.pdg_always_pdt_start = true;
     out.push_back({"coherence", "always PDt start", r, false});
+    for (std::uint64_t budget : {std::uint64_t{0}, std::uint64_t{2000}, std::uint64_t{32000}}) {
+      pd::PenetrationRequest rb = base;
+      rb.pdg_iteration_budget = budget;
+      out.push_back({"iteration work budget",
+                     budget == 0 ? std::string("no budget") : "budget " + std::to_string(budget),
+                     rb, false});
+    }
   }
   return out;
 }

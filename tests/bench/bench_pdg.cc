@@ -14,7 +14,10 @@
 // collide with all contacts on the same poses (p50/p99 and PDg p99 / FCL
 // p99: a machine's speed moves both alike). Checks, untimed: answers that are not a contact along
 // their own motion (pushed 1e-6 of the motion further: still colliding;
-// pulled back as much: free). Writes a summary CSV (--csv FILE, default
+// pulled back as much: free). Then the same frames again without PDg's
+// iteration work budget (PenetrationRequest::pdg_iteration_budget = 0): its
+// times, and the budget's cost in depth (summed depth with / without, frames
+// deeper by more than 1%, the largest ratio). Writes a summary CSV (--csv FILE, default
 // bench_pdg.csv) and optionally one row per frame (--frames-csv FILE). No
 // assertions on time.
 //
@@ -53,7 +56,7 @@ using hp::bench::Us;
 /// The heading of the per-frame CSV (--frames-csv).
 constexpr char kFramesCsvHeader[] =
     "benchmark,frame,phase,commanded_m,status,pdg_depth_m,sigma_m2,rotation_rad,"
-    "pdt_depth_m,iterations,contacts,pdg_us,pdt_us,fcl_us\n";
+    "pdt_depth_m,iterations,contacts,pdg_us,pdt_us,fcl_us,unbudgeted_depth_m,unbudgeted_us\n";
 
 struct FrameRecord {
   double pdg_us = 0, pdt_us = 0, fcl_us = 0;
@@ -65,6 +68,9 @@ struct FrameRecord {
   double pdt_depth = 0;
   bool above_pdt = false;    ///< sqrt(sigma) > |PDt| (1 + 1e-9)
   bool not_contact = false;  ///< push/pull check along the answer's motion failed
+  // The same trajectory replayed without the iteration work budget.
+  double unbudgeted_us = 0;
+  double unbudgeted_depth = 0;
 };
 
 /// PDg's times, iterations and contacts in the base; the rest here.
@@ -73,6 +79,12 @@ struct Summary : hp::bench::SummaryBase {
   double pdt_p50 = 0, pdt_p99 = 0;
   double fcl_p50 = 0, fcl_p99 = 0;  ///< FCL all-contacts collide on the same poses
   double sigma_ratio_median = 0, sigma_ratio_min = 0;
+  // Without the iteration work budget (request.pdg_iteration_budget = 0).
+  double unbudgeted_p50 = 0, unbudgeted_p99 = 0;
+  int unbudgeted_over_1ms = 0;
+  double depth_sum_ratio = 1;  ///< summed depth, budgeted / unbudgeted
+  int deeper_1pct = 0;         ///< frames the budgeted answer is deeper by > 1%
+  double depth_ratio_max = 1;  ///< largest budgeted / unbudgeted depth
 };
 
 Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
@@ -114,13 +126,38 @@ Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
     }
   }
 
+  // Again without the work budget: what it costs in depth, and saves in time.
+  {
+    pd::PdgQueryData unbudgeted_data;
+    pd::PenetrationRequest unbudgeted = request;
+    unbudgeted.pdg_iteration_budget = 0;
+    for (std::size_t i = 0; i < b.frames.size(); ++i) {
+      const auto t0 = std::chrono::steady_clock::now();
+      pd::ComputePdg(*b.probe, b.frames[i].X_WA, *b.scene, X_WB, unbudgeted, &unbudgeted_data,
+                     &pdg);
+      FrameRecord& r = (*records)[i];
+      r.unbudgeted_us = Us(t0, std::chrono::steady_clock::now());
+      r.unbudgeted_depth = pdg.depth;
+    }
+  }
+
   hp::bench::TimeFclAllContacts(b, X_WB, records, &FrameRecord::fcl_us, &FrameRecord::fcl_contacts);
 
   Summary s;
   hp::bench::BeginSummary(b, records->size(), &s);
-  std::vector<double> pdg_us, pdt_us, fcl_us, sigma_ratios;
+  std::vector<double> pdg_us, pdt_us, fcl_us, sigma_ratios, unbudgeted_us;
   long iterations = 0, contacts = 0;
+  double depth_sum = 0, unbudgeted_depth_sum = 0;
   for (const FrameRecord& r : *records) {
+    unbudgeted_us.push_back(r.unbudgeted_us);
+    s.unbudgeted_over_1ms += r.unbudgeted_us > kGoalP99Us;
+    depth_sum += r.depth;
+    unbudgeted_depth_sum += r.unbudgeted_depth;
+    if (r.unbudgeted_depth > 0) {
+      const double ratio = r.depth / r.unbudgeted_depth;
+      s.deeper_1pct += ratio > 1.01;
+      s.depth_ratio_max = std::max(s.depth_ratio_max, ratio);
+    }
     pdg_us.push_back(r.pdg_us);
     pdt_us.push_back(r.pdt_us);
     fcl_us.push_back(r.fcl_us);
@@ -141,6 +178,9 @@ Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
   s.fcl_p99 = Percentile(fcl_us, 0.99);
   s.sigma_ratio_median = Percentile(sigma_ratios, 0.5);
   s.sigma_ratio_min = Percentile(sigma_ratios, 0.0);
+  s.unbudgeted_p50 = Percentile(unbudgeted_us, 0.5);
+  s.unbudgeted_p99 = Percentile(unbudgeted_us, 0.99);
+  s.depth_sum_ratio = unbudgeted_depth_sum > 0 ? depth_sum / unbudgeted_depth_sum : 1;
   return s;
 }
 
@@ -173,7 +213,8 @@ int main(int argc, char** argv) {
       [](std::ostream& csv, const FrameRecord& r) {
         csv << "," << r.sigma << "," << r.angle << "," << r.pdt_depth << "," << r.iterations << ","
             << r.contacts << "," << std::setprecision(3) << r.pdg_us << "," << r.pdt_us << ","
-            << r.fcl_us << "\n";
+            << r.fcl_us << "," << std::setprecision(9) << r.unbudgeted_depth << ","
+            << std::setprecision(3) << r.unbudgeted_us << "\n";
       });
 
   std::cout << "\nPDg per frame (us), PDt on the same frames; goal p50 <= " << kGoalP50Us
@@ -189,7 +230,8 @@ int main(int argc, char** argv) {
   out << hp::bench::CsvHeadStart("pdg")
       << ",rotated_frames,failed,cap_reached,pdt_p50_us,pdt_p99_us,time_ratio_p50,"
          "sigma_ratio_median,sigma_ratio_min,answers_above_pdt,answers_not_contact,fcl_p50_us,"
-         "fcl_p99_us,p99_ratio_fcl,goal_met\n";
+         "fcl_p99_us,p99_ratio_fcl,goal_met,unbudgeted_p50_us,unbudgeted_p99_us,"
+         "depth_sum_ratio_budgeted_over_unbudgeted\n";
   for (const Summary& s : summaries) {
     const double ratio = s.pdt_p50 > 0 ? s.p50 / s.pdt_p50 : 0;
     const double rot = s.penetrating > 0 ? 100.0 * s.rotated / s.penetrating : 0;
@@ -207,7 +249,8 @@ int main(int argc, char** argv) {
     out << "," << s.rotated << "," << s.failed << "," << s.cap_reached << "," << s.pdt_p50 << ","
         << s.pdt_p99 << "," << ratio << "," << s.sigma_ratio_median << "," << s.sigma_ratio_min
         << "," << s.above_pdt << "," << s.not_contact << "," << s.fcl_p50 << "," << s.fcl_p99 << ","
-        << fcl_ratio << "," << (s.goal_met ? 1 : 0) << "\n";
+        << fcl_ratio << "," << (s.goal_met ? 1 : 0) << "," << s.unbudgeted_p50 << ","
+        << s.unbudgeted_p99 << "," << s.depth_sum_ratio << "\n";
   }
   std::cout
       << "pen = frames PDg finds penetrating; iters, contacts = means over those; rot% = "
@@ -218,6 +261,24 @@ int main(int argc, char** argv) {
          "answers above PDt; !cont = answers not a contact along their own motion; FCL = FCL's "
          "mesh-mesh collide with all contacts on the same poses, p99/FCL = PDg p99 / FCL "
          "p99\n";
+  std::cout << "\nThe same frames without the iteration work budget (pdg_iteration_budget = 0, "
+               "default "
+            << pd::PenetrationRequest{}.pdg_iteration_budget << " box and triangle tests)\n"
+            << std::left << std::setw(17) << "benchmark" << std::right << std::setw(9) << "p50"
+            << std::setw(9) << "p99" << std::setw(6) << ">1ms" << std::setw(13) << "depth sum"
+            << std::setw(9) << ">1%" << std::setw(11) << "max ratio"
+            << "\n";
+  for (const Summary& s : summaries) {
+    std::cout << std::left << std::setw(17) << s.name << std::right << std::setprecision(1)
+              << std::setw(9) << s.unbudgeted_p50 << std::setw(9) << s.unbudgeted_p99
+              << std::setw(6) << s.unbudgeted_over_1ms << std::setprecision(4) << std::setw(13)
+              << s.depth_sum_ratio << std::setw(9) << s.deeper_1pct << std::setprecision(3)
+              << std::setw(11) << s.depth_ratio_max << "\n";
+  }
+  std::cout << "p50, p99, >1ms: PDg without the budget; depth sum = summed depth with the "
+               "budget / without; >1% = frames whose budgeted answer is more than 1% deeper; max "
+               "ratio = the largest budgeted / unbudgeted depth (motion coherence makes the two "
+               "runs' answers drift apart both ways)\n";
   hp::bench::PrintCsvWritten(run.args.csv, run.args.frames_csv);
   return 0;
 }

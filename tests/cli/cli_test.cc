@@ -82,8 +82,9 @@ TEST(CliTest, MeshInfoFile) {
 TEST(CliTest, PdHelpDocumentsDeepestBody) {
   const RunResult r = RunCli("pd --help");
   EXPECT_EQ(r.exit_code, 0);
-  for (const char* s : {"--probe", "--scene", "--pose", "--scene-pose", "--mode", "--json",
-                        "--stiffness", "--epsilon", "--max-iterations", "DEEPEST"}) {
+  for (const char* s :
+       {"--probe", "--scene", "--pose", "--scene-pose", "--mode", "--json", "--stiffness",
+        "--epsilon", "--max-iterations", "--pdg-budget", "DEEPEST"}) {
     EXPECT_NE(r.out.find(s), std::string::npos) << s << " missing from:\n" << r.out;
   }
 }
@@ -321,6 +322,9 @@ TEST(CliTest, PdBadInput) {
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --epsilon -1e-4", "--epsilon");
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --epsilon nan", "--epsilon");
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --max-iterations 0", "--max-iterations");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode pdg --pdg-budget -1",
+                     "--pdg-budget: must be a non-negative integer");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode pdg --pdg-budget 1e3", "got '1e3'");
   ExpectOneLineError("pd --scene shape:box" + ok_pose, "--probe");
   ExpectOneLineError("pd --probe shape:box" + ok_pose, "--scene");
   ExpectOneLineError(std::string(kBoxes), "--pose");

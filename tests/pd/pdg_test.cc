@@ -250,6 +250,37 @@ TEST(PdgRandom, EveryAnswerIsAVerifiedContactNoDeeperThanPdt) {
   });
 }
 
+// The iteration work budget: on poses whose unbudgeted query iterates three
+// times or more, a budget of one test stops after the first iteration (the
+// first always runs) with a verified contact, never above PDt.
+TEST(PdgBudget, ABudgetStopsTheIterationsWithAVerifiedContact) {
+  std::mt19937_64 rng(testing::TestSeed());
+  int checked = 0;
+  ForEachPair(AllCases(), [&](const ProbeAndScene& ps, const PairCase& c) {
+    const GeometryModel& A = *ps.A;
+    const GeometryModel& B = *ps.B;
+    PdgQueryData data;
+    PdQueryData pdt_data;
+    PenetrationResult full, capped, pdt;
+    PenetrationRequest unlimited = ColdRequest();
+    unlimited.pdg_iteration_budget = 0;
+    PenetrationRequest tight = ColdRequest();
+    tight.pdg_iteration_budget = 1;
+    for (int i = 0; i < testing::TestCount(25); ++i) {
+      const Pose X_WA = NearSurfacePose(A, B, rng, c.spread);
+      ComputePdg(A, X_WA, B, Pose::Identity(), unlimited, &data, &full);
+      if (full.status == PdStatus::kSeparated || full.iterations < 3) continue;
+      ComputePdg(A, X_WA, B, Pose::Identity(), tight, &data, &capped);
+      ComputePdt(A, X_WA, B, Pose::Identity(), ColdRequest(), &pdt_data, &pdt);
+      EXPECT_EQ(capped.status, PdStatus::kPenetratingCapReached);
+      EXPECT_EQ(capped.iterations, 1);
+      ExpectVerifiedPdg(A, X_WA, Pose::Identity(), ps.fa, ps.fb, capped, pdt.depth);
+      ++checked;
+    }
+  });
+  EXPECT_GT(checked, 5) << "too few poses that iterate three times or more";
+}
+
 TEST(PdgRandom, SharedBunnyAnswersAreVerifiedContacts) {
   HAPTICPD_REQUIRE_MODEL(path, "stanford-bunny.obj");
   const ProbeAndScene ps(MakeModel(shapes::Stick()), MakeModel(LoadMesh(path.string())));
