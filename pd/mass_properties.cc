@@ -49,7 +49,46 @@ Moments ShellMoments(const Mesh& mesh, const Vec3& origin) {
   return r;
 }
 
+// The unit vector of the plane normal to the unit vector e that lies closest
+// to one of the file frame's axes (the axis least aligned with e; ties to
+// the lower index).
+Vec3 FileAxisInPlane(const Vec3& e) {
+  int k = 0;
+  for (int i = 1; i < 3; ++i) {
+    if (std::abs(e[i]) < std::abs(e[k])) k = i;
+  }
+  const Vec3 axis = Vec3::Unit(k);
+  return (axis - axis.dot(e) * e).normalized();
+}
+
 }  // namespace
+
+void CanonicalizeDegenerateAxes(const Vec3& moments, Mat3* R) {
+  // Moments within this fraction of the largest are equal: the principal
+  // axes of their eigenspace are whatever the eigensolver returns, and a
+  // change of the mesh far below float precision (a 1e-9 stretch along a
+  // cube's diagonal) turns them by tens of degrees. The object norm is
+  // isotropic in such a subspace to within the same fraction, so any basis
+  // of it serves; the file frame's axes make the choice stable.
+  constexpr double kTolerance = 1e-6;
+  const double tol = kTolerance * std::max(std::abs(moments[2]), 1e-300);
+  const double gap01 = moments[1] - moments[0];
+  const double gap12 = moments[2] - moments[1];
+  if (moments[2] - moments[0] <= tol) {
+    *R = Mat3::Identity();  // sphere-like: every axis is principal
+  } else if (gap01 <= tol && gap01 <= gap12) {
+    // Axis 2 is well defined; choose 0 and 1 in the plane normal to it.
+    const Vec3 e2 = R->col(2);
+    const Vec3 e0 = FileAxisInPlane(e2);
+    R->col(0) = e0;
+    R->col(1) = e2.cross(e0);
+  } else if (gap12 <= tol) {
+    const Vec3 e0 = R->col(0);
+    const Vec3 e1 = FileAxisInPlane(e0);
+    R->col(1) = e1;
+    R->col(2) = e0.cross(e1);
+  }
+}
 
 MassProperties ComputeMassProperties(const Mesh& mesh) {
   MassProperties mp;
@@ -87,6 +126,7 @@ MassProperties ComputeMassProperties(const Mesh& mesh) {
   Mat3 R = es.eigenvectors();
   if (R.determinant() < 0) R.col(2) = -R.col(2);
   mp.X_MB = Pose{R, mp.p_MC};
+  CanonicalizeDegenerateAxes(mp.principal_moments, &mp.X_MB.R);
   return mp;
 }
 

@@ -30,6 +30,14 @@ struct MassProperties {
   double norm_measure = 0;
 };
 
+/// Makes the principal axes of equal moments (within 1e-6 of the largest)
+/// well defined: for three equal moments R becomes the identity (the file
+/// frame's axes), for two the pair's axes are chosen in the plane normal to
+/// the third, the first of them along the projection of the file axis least
+/// aligned with that normal. R stays a proper rotation; well-separated axes
+/// are kept. Used by ComputeMassProperties.
+void CanonicalizeDegenerateAxes(const Vec3& moments, Mat3* R);
+
 /// Computes volume, centre of mass and inertia (Mirtich / Eberly polyhedral
 /// integrals). Meshes with a non-positive or negligible volume (open, flat,
 /// inward-wound) fall back to surface (shell) properties, flagged in the

@@ -86,5 +86,59 @@ TEST(MassProperties, ObjectNormMetricUsesPrincipalMoments) {
   }
 }
 
+// A mesh stretched by `e` along the unit direction d.
+Mesh StretchedAlong(const Mesh& mesh, const Vec3& d, double e) {
+  std::vector<Vec3> V = mesh.vertices();
+  for (Vec3& v : V) v += e * d.dot(v) * d;
+  return Mesh::FromArrays(V, mesh.triangles(), "stretched");
+}
+
+// The same axes up to their signs (which nothing downstream sees: the cold
+// start sweeps along both signs, the object norm is quadratic).
+double AxesApart(const Mat3& Ra, const Mat3& Rb) {
+  return ((Ra.transpose() * Rb).cwiseAbs() - Mat3::Identity()).norm();
+}
+
+void ExpectProperRotation(const Mat3& R) {
+  EXPECT_LT((R.transpose() * R - Mat3::Identity()).norm(), 1e-12);
+  EXPECT_NEAR(R.determinant(), 1, 1e-12);
+}
+
+// Equal principal moments leave the eigensolver free to return any axes of
+// their eigenspace; a change of the mesh far below float precision must not
+// turn them (it turned a cube's by 55 degrees).
+TEST(MassProperties, EqualMomentsGetAxesThatAChangeBelowPrecisionDoesNotTurn) {
+  const Vec3 diagonal = Vec3(1, 1, 1).normalized();
+  // Three equal moments: the file frame's axes.
+  const Mesh cube = shapes::Box(Vec3(0.1, 0.1, 0.1));
+  for (double e : {0.0, 1e-9, 1e-8}) {
+    SCOPED_TRACE(e);
+    const MassProperties mp = ComputeMassProperties(StretchedAlong(cube, diagonal, e));
+    EXPECT_LT((mp.X_MB.R - Mat3::Identity()).norm(), 1e-12);
+  }
+  // Two equal moments (a square bar along a tilted axis): the distinct axis
+  // (the smallest moment, axis 0) is the bar's; the other two stay put
+  // under the change.
+  const Pose X_tilt = Pose::FromQuaternion(
+      Quat(Eigen::AngleAxisd(0.4, Vec3(1, -2, 0.5).normalized())), Vec3(0.3, -0.1, 0.2));
+  const Mesh bar = shapes::Box(Vec3(0.1, 0.1, 0.4)).Transformed(X_tilt);
+  const MassProperties base = ComputeMassProperties(bar);
+  ExpectProperRotation(base.X_MB.R);
+  EXPECT_NEAR(std::abs(base.X_MB.R.col(0).dot(X_tilt.R.col(2))), 1, 1e-12);
+  for (const Vec3& d : {diagonal, Vec3(Vec3::UnitX()), Vec3(0.3, -0.8, 0.2).normalized()}) {
+    const MassProperties mp = ComputeMassProperties(StretchedAlong(bar, d, 1e-9));
+    ExpectProperRotation(mp.X_MB.R);
+    EXPECT_LT(AxesApart(mp.X_MB.R, base.X_MB.R), 1e-6) << d.transpose();
+  }
+  // Distinct moments: the eigenvectors as they are (a tilted box's edges,
+  // the longest edge's axis first: the smallest moment).
+  const Mesh box = shapes::Box(Vec3(0.1, 0.2, 0.3)).Transformed(X_tilt);
+  const MassProperties mp = ComputeMassProperties(box);
+  ExpectProperRotation(mp.X_MB.R);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_NEAR(std::abs(mp.X_MB.R.col(k).dot(X_tilt.R.col(2 - k))), 1, 1e-12) << k;
+  }
+}
+
 }  // namespace
 }  // namespace hapticpd::pd
