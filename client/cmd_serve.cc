@@ -86,6 +86,37 @@ void RegisterServe(CLI::App& app) {
   cmd->add_option("--max-message-bytes", s.limits.max_message_bytes,
                   "Bytes per received gRPC message")
       ->capture_default_str();
+  cmd->add_option("--max-update-force", s.limits.max_update_force,
+                  "N: an answer with a larger force (or a non-finite number) is withheld: sent "
+                  "as zero force and no rows (CONTACT_STATUS_WITHHELD)")
+      ->check(CLI::Range(1e-3, 1e9))
+      ->capture_default_str();
+  cmd->add_option("--max-update-torque", s.limits.max_update_torque,
+                  "N m: likewise for the torque")
+      ->check(CLI::Range(1e-3, 1e9))
+      ->capture_default_str();
+  cmd->add_option("--idle-timeout", s.limits.idle_timeout_s,
+                  "Seconds: a device session that sends nothing for this long, or an observer "
+                  "whose write has not completed for this long, is ended (0: never)")
+      ->check(CLI::Range(0.0, 86400.0))
+      ->capture_default_str();
+  cmd->add_option("--keepalive", s.limits.keepalive_time_s,
+                  "Seconds between the server's HTTP/2 keepalive pings; a connection that does "
+                  "not answer within --keepalive-timeout is dropped")
+      ->check(CLI::Range(0.1, 86400.0))
+      ->capture_default_str();
+  cmd->add_option("--keepalive-timeout", s.limits.keepalive_timeout_s,
+                  "Seconds a keepalive ping may go unanswered")
+      ->check(CLI::Range(0.1, 3600.0))
+      ->capture_default_str();
+  cmd->add_option("--build-threads", s.limits.build_threads,
+                  "Threads that parse uploaded meshes and build their BVHs")
+      ->check(CLI::Range(1, 64))
+      ->capture_default_str();
+  cmd->add_option("--max-builds-per-client", s.limits.max_builds_per_client,
+                  "Builds one client (token, or peer address when open) may run at once")
+      ->check(CLI::Range(1, 64))
+      ->capture_default_str();
   cmd->add_option("--log-level", o->log_level, "trace, debug, info, warn, error, off")
       ->capture_default_str();
   cmd->callback([o] { RunServe(*o); });

@@ -92,8 +92,10 @@ const TokenStore::Entry* TokenStore::Find(const grpc::ServerContextBase& ctx) co
   auto it = md.find("authorization");
   if (it == md.end()) return nullptr;
   std::string_view v(it->second.data(), it->second.size());
+  // RFC 6750: "Bearer TOKEN"; a bare token is not accepted.
   constexpr std::string_view kBearer = "Bearer ";
-  if (v.substr(0, kBearer.size()) == kBearer) v.remove_prefix(kBearer.size());
+  if (v.substr(0, kBearer.size()) != kBearer) return nullptr;
+  v.remove_prefix(kBearer.size());
   auto t = tokens_.find(std::string(v));
   return t == tokens_.end() ? nullptr : &t->second;
 }
@@ -109,6 +111,13 @@ std::uint8_t TokenStore::Effective(const Entry& e, const std::string& scene) {
 
 grpc::Status TokenStore::CheckAnyToken(const grpc::ServerContextBase& ctx) const {
   if (open_ || Find(ctx) != nullptr) return grpc::Status::OK;
+  const auto& md = ctx.client_metadata();
+  if (auto it = md.find("authorization");
+      it != md.end() && std::string_view(it->second.data(), it->second.size()).rfind("Bearer ", 0) != 0) {
+    return grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
+                        "the authorization metadata must be 'Bearer TOKEN' (the 'Bearer ' prefix "
+                        "is missing)");
+  }
   return grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
                       "missing or unknown token (send metadata 'authorization: Bearer TOKEN')");
 }

@@ -1,6 +1,9 @@
 #include "server/core.h"
 
+#include <algorithm>
+
 #include "hapticpd/v1/haptic.pb.h"
+#include "proto/wire/text.h"
 
 namespace hapticpd::server::internal {
 
@@ -12,23 +15,23 @@ std::shared_ptr<spdlog::logger> Log() {
   return logger;
 }
 
-JobQueue::JobQueue(int threads) {
+BuildPool::BuildPool(int threads, int per_client) : per_client_(per_client) {
   for (int i = 0; i < threads; ++i) threads_.emplace_back([this] { Loop(); });
 }
 
-JobQueue::~JobQueue() { Stop(); }
+BuildPool::~BuildPool() { Stop(); }
 
-bool JobQueue::Submit(std::function<void()> job) {
+bool BuildPool::Submit(std::string client, std::function<void()> job) {
   {
     std::lock_guard lock(mu_);
     if (stopping_) return false;
-    jobs_.push_back(std::move(job));
+    jobs_.push_back({std::move(client), std::move(job)});
   }
-  cv_.notify_one();
+  cv_.notify_all();
   return true;
 }
 
-void JobQueue::Stop() {
+void BuildPool::Stop() {
   {
     std::lock_guard lock(mu_);
     stopping_ = true;
@@ -40,17 +43,28 @@ void JobQueue::Stop() {
   threads_.clear();
 }
 
-void JobQueue::Loop() {
+void BuildPool::Loop() {
+  std::unique_lock lock(mu_);
   for (;;) {
-    std::function<void()> job;
-    {
-      std::unique_lock lock(mu_);
-      cv_.wait(lock, [&] { return stopping_ || !jobs_.empty(); });
-      if (jobs_.empty()) return;
-      job = std::move(jobs_.front());
-      jobs_.pop_front();
-    }
-    job();
+    // The oldest job whose client is under its bound.
+    auto next = jobs_.end();
+    cv_.wait(lock, [&] {
+      next = std::find_if(jobs_.begin(), jobs_.end(),
+                          [&](const Job& j) {
+                            const auto it = running_.find(j.client);
+                            return it == running_.end() || it->second < per_client_;
+                          });
+      return next != jobs_.end() || (stopping_ && jobs_.empty());
+    });
+    if (next == jobs_.end()) return;  // stopping, nothing left
+    Job job = std::move(*next);
+    jobs_.erase(next);
+    ++running_[job.client];
+    lock.unlock();
+    job.run();
+    lock.lock();
+    if (--running_[job.client] == 0) running_.erase(job.client);
+    cv_.notify_all();  // a job of this client may be startable now
   }
 }
 
@@ -95,6 +109,26 @@ grpc::Status CheckModeSupported(int mode) {
       return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
                           "hello.mode: say which PD mode (PD_MODE_NONE, PD_MODE_PDT, PD_MODE_PDG)");
   }
+}
+
+grpc::Status Bounded(const grpc::Status& s) {
+  if (s.error_message().size() <= wire::kMaxStatusMessage) return s;
+  return grpc::Status(s.error_code(), wire::BoundedMessage(s.error_message()));
+}
+
+std::string ClientKey(const TokenStore& tokens, const grpc::ServerContextBase& ctx) {
+  if (!tokens.open()) {
+    const auto& md = ctx.client_metadata();
+    if (auto it = md.find("authorization"); it != md.end()) {
+      return "token:" + std::string(it->second.data(), it->second.size());
+    }
+  }
+  // "ipv4:127.0.0.1:54321", "ipv6:[::1]:54321": the address without the port.
+  std::string peer = ctx.peer();
+  if (const auto colon = peer.rfind(':'); colon != std::string::npos && colon > 5) {
+    peer.resize(colon);
+  }
+  return "peer:" + peer;
 }
 
 }  // namespace hapticpd::server::internal

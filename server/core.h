@@ -10,7 +10,9 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <map>
 #include <set>
+#include <string>
 #include <thread>
 
 #include "server/auth.h"
@@ -99,22 +101,31 @@ class Reaction {
 /// The server's logger ("server"), sharing the default logger's sinks.
 std::shared_ptr<spdlog::logger> Log();
 
-/// A small pool that runs mesh parsing and BVH builds off the gRPC threads
-/// and off the haptic path.
-class JobQueue {
+/// The pool that runs mesh parsing and BVH builds, off the gRPC threads and
+/// off the haptic path. Jobs start in the order they were submitted, except
+/// that a job whose client already runs `per_client` jobs waits (and the
+/// next job of another client goes first): one client's large upload never
+/// holds up another client's small one.
+class BuildPool {
  public:
-  explicit JobQueue(int threads);
-  ~JobQueue();
-  /// False after Stop() (the job is not run).
-  bool Submit(std::function<void()> job);
+  BuildPool(int threads, int per_client);
+  ~BuildPool();
+  /// False after Stop() (the job is not run). `client` keys the bound.
+  bool Submit(std::string client, std::function<void()> job);
   /// Runs the queued jobs, then joins the threads.
   void Stop();
 
  private:
+  struct Job {
+    std::string client;
+    std::function<void()> run;
+  };
   void Loop();
+  const int per_client_;
   std::mutex mu_;
   std::condition_variable cv_;
-  std::deque<std::function<void()>> jobs_;
+  std::deque<Job> jobs_;
+  std::map<std::string, int> running_;
   bool stopping_ = false;
   std::vector<std::thread> threads_;
 };
@@ -131,14 +142,18 @@ class StoppableCall {
 class ObserverPublishers;
 
 struct Core {
-  explicit Core(const Limits& l) : limits(l), builds(1) {}
+  explicit Core(const Limits& l)
+      : limits(l), builds(std::max(1, l.build_threads), std::max(1, l.max_builds_per_client)) {}
 
   Limits limits;
   TokenStore tokens;
   ChangeSignal signal;
   SceneRegistry scenes{&signal};
   Stats stats;
-  JobQueue builds;
+  BuildPool builds;
+  /// Tests only: called on the build thread before each AddBody build with
+  /// the body's label (orders builds without timing).
+  std::function<void(const std::string& label)> before_build;
   ObserverPublishers* publishers = nullptr;
   std::atomic<bool> shutting_down{false};
   std::atomic<int> sessions{0};
@@ -164,8 +179,17 @@ struct Core {
   std::set<StoppableCall*> calls_;
 };
 
-/// Whether `mode` can be served now. PDg answers UNIMPLEMENTED until
-/// pd::ComputePdg lands (a one-line change here).
+/// Whether `mode` is a PD mode the server serves (none, PDt, PDg).
 grpc::Status CheckModeSupported(int mode);
+
+/// `s` with its message cut to wire::kMaxStatusMessage bytes when longer (a
+/// default gRPC client refuses trailers over 8 KiB and would see "metadata
+/// size exceeds limit" instead of the error). Every status a call ends with
+/// goes through it.
+grpc::Status Bounded(const grpc::Status& s);
+
+/// Who a call comes from, for per-client bounds: its token, or its peer
+/// address without the port when the server runs open.
+std::string ClientKey(const TokenStore& tokens, const grpc::ServerContextBase& ctx);
 
 }  // namespace hapticpd::server::internal

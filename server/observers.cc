@@ -129,8 +129,10 @@ std::chrono::nanoseconds PeriodOf(double rate_hz) {
 }
 }  // namespace
 
-WatchReactor::WatchReactor(Core* core, ScenePtr scene, const v1::WatchRequest& request)
+WatchReactor::WatchReactor(Core* core, grpc::CallbackServerContext* ctx, ScenePtr scene,
+                           const v1::WatchRequest& request)
     : core_(core),
+      ctx_(ctx),
       scene_(std::move(scene)),
       period_(PeriodOf(request.rate_hz())),
       include_meshes_(request.include_meshes()) {
@@ -142,7 +144,7 @@ WatchReactor::WatchReactor(Core* core, ScenePtr scene, const v1::WatchRequest& r
 
 Clock::time_point WatchReactor::Tick(Clock::time_point now) {
   std::unique_lock lock(mu_);
-  if (finish_called_ || finish_wanted_) return now + std::chrono::hours(1);
+  if (finish_called_ || finish_wanted_ || stalled_) return now + std::chrono::hours(1);
   if (scene_->deleted()) {
     bool call = false;
     FinishLocked(
@@ -154,10 +156,27 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
     }
     return now + std::chrono::hours(1);
   }
+  // A write stuck for the idle timeout: the observer is frozen or its
+  // connection half-open. Cancel the call (a status could not reach it) to
+  // free its slot.
+  auto stuck_at = Clock::time_point::max();
+  if (const double idle_s = core_->limits.idle_timeout_s; in_flight_ && idle_s > 0) {
+    stuck_at = write_started_ + std::chrono::nanoseconds(static_cast<std::int64_t>(idle_s * 1e9));
+    if (now >= stuck_at && !stalled_) {
+      stalled_ = true;
+      core_->stats.observers_stalled.fetch_add(1, std::memory_order_relaxed);
+      lock.unlock();
+      Log()->info("observer of scene '{}': a write has not completed for {:g} s (idle timeout): "
+                  "cancelled",
+                  scene_->id(), idle_s);
+      ctx_->TryCancel();
+      return now + std::chrono::hours(1);
+    }
+  }
   const SnapshotPtr snap = scene_->snapshot();
   const bool structural = last_ == nullptr || snap->structure_revision != last_->structure_revision;
   const bool pose_due = now >= next_pose_due_;
-  if (!structural && !pose_due) return next_pose_due_;
+  if (!structural && !pose_due) return std::min(next_pose_due_, stuck_at);
   if (in_flight_) {
     // The observer has not taken the previous frame: skip this one.
     if (pose_due) {
@@ -165,7 +184,7 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
       core_->stats.observer_frames_dropped.fetch_add(1, std::memory_order_relaxed);
       next_pose_due_ = now + period_;
     }
-    return next_pose_due_;
+    return std::min(next_pose_due_, stuck_at);
   }
   msg_.Clear();
   msg_.set_revision(snap->revision);
@@ -205,6 +224,7 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
   }
   last_ = snap;
   in_flight_ = true;
+  write_started_ = now;
   core_->stats.observer_frames_sent.fetch_add(1, std::memory_order_relaxed);
   // Under mu_: a forced Finish (cancellation) cannot slip in between.
   GrpcStart(this, [&] { StartWrite(&msg_); });

@@ -69,7 +69,8 @@ class ObserverPublishers {
 
 class WatchReactor final : public grpc::ServerWriteReactor<v1::SceneEvent>, public StoppableCall {
  public:
-  WatchReactor(Core* core, ScenePtr scene, const v1::WatchRequest& request);
+  WatchReactor(Core* core, grpc::CallbackServerContext* ctx, ScenePtr scene,
+               const v1::WatchRequest& request);
 
   /// Called by the hub: writes the next frame if one is due and no write is
   /// in flight. Returns when the next pose frame is due.
@@ -87,8 +88,11 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SceneEvent>, publ
   void FinishLocked(const grpc::Status& status, bool force, bool* call_finish);
 
   Core* core_;
+  grpc::CallbackServerContext* ctx_;
   ScenePtr scene_;
   const std::chrono::nanoseconds period_;
+  std::chrono::steady_clock::time_point write_started_{};  ///< of the write in flight
+  bool stalled_ = false;  ///< cancelled for a write stuck over the idle timeout
   const bool include_meshes_;
   std::mutex mu_;
   bool in_flight_ = false;

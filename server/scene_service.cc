@@ -1,5 +1,7 @@
 #include <grpcpp/grpcpp.h>
 
+#include "proto/wire/ranges.h"
+#include "proto/wire/text.h"
 #include "server/convert.h"
 #include "server/observers.h"
 #include "server/scene_file.h"
@@ -10,7 +12,7 @@ namespace {
 
 grpc::ServerUnaryReactor* Done(grpc::CallbackServerContext* ctx, const grpc::Status& s) {
   auto* r = ctx->DefaultReactor();
-  r->Finish(s);
+  r->Finish(Bounded(s));
   return r;
 }
 
@@ -19,7 +21,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
                              public StoppableCall {
  public:
   AddBodyReactor(Core* core, grpc::CallbackServerContext* ctx, v1::Body* resp)
-      : core_(core), ctx_(ctx), resp_(resp) {
+      : core_(core), ctx_(ctx), resp_(resp), client_(ClientKey(core->tokens, *ctx)) {
     core_->Register(this);
     if (core_->shutting_down.load()) {
       FinishOnce(core_->Unavailable());
@@ -88,7 +90,13 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
       if (header_.mesh_case() != v1::AddBodyHeader::kFormat) {
         return InvalidArgument("chunk", "file bytes sent for a body given inline or as a shape");
       }
-      if (bytes_.size() + req_.chunk().size() > core_->limits.max_mesh_bytes) {
+      const std::size_t total = bytes_.size() + req_.chunk().size();
+      if (header_.total_bytes() > 0 && total > header_.total_bytes()) {
+        return InvalidArgument("chunk", std::to_string(total) +
+                                            " bytes received, more than header.total_bytes " +
+                                            std::to_string(header_.total_bytes()));
+      }
+      if (total > core_->limits.max_mesh_bytes) {
         return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
                             "chunk: the mesh exceeds the server limit of " +
                                 std::to_string(core_->limits.max_mesh_bytes) + " bytes");
@@ -109,8 +117,15 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
       FinishOnceLocked(grpc::Status::CANCELLED);
       return;
     }
+    if (header_.mesh_case() == v1::AddBodyHeader::kFormat && header_.total_bytes() > 0 &&
+        bytes_.size() != header_.total_bytes()) {
+      FinishOnceLocked(InvalidArgument(
+          "chunk", std::to_string(bytes_.size()) + " bytes received, header.total_bytes said " +
+                       std::to_string(header_.total_bytes())));
+      return;
+    }
     submitted_ = true;
-    const bool queued = core_->builds.Submit([this] { Build(); });
+    const bool queued = core_->builds.Submit(client_, [this] { Build(); });
     if (!queued) {
       submitted_ = false;
       FinishOnceLocked(core_->Unavailable());
@@ -118,6 +133,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
   }
 
   void Build() {
+    if (core_->before_build) core_->before_build(header_.spec().label());
     grpc::Status s;
     std::optional<pd::Mesh> mesh;
     const std::size_t max_tris = core_->limits.max_mesh_triangles;
@@ -147,7 +163,8 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
       Log()->info("scene '{}': added body '{}' ({} triangles)", scene_->id(), added.id,
                   added.model->mesh().num_triangles());
     } else {
-      Log()->info("scene '{}': AddBody rejected: {}", header_.scene_id(), s.error_message());
+      Log()->info("scene '{}': AddBody rejected: {}", wire::Printable(header_.scene_id()),
+                  wire::Printable(s.error_message(), wire::kMaxStatusMessage));
     }
     {
       std::lock_guard lock(mu_);
@@ -156,7 +173,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
     }
     // Outside the lock and the last touch of `this`: OnDone may run (and
     // delete this reactor) on another thread as soon as Finish is called.
-    GrpcStart(this, [&] { Finish(s); });
+    GrpcStart(this, [&] { Finish(Bounded(s)); });
   }
 
   /// Only from reactions (OnReadDone) or under Core::StopCalls' lock, where
@@ -164,7 +181,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
   void FinishOnceLocked(const grpc::Status& s) {
     if (finished_) return;
     finished_ = true;
-    GrpcStart(this, [&] { Finish(s); });
+    GrpcStart(this, [&] { Finish(Bounded(s)); });
   }
   void FinishOnce(const grpc::Status& s) {
     {
@@ -174,7 +191,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
     }
     // Outside the lock and the last touch of `this`: OnDone may run (and
     // delete this reactor) on another thread as soon as Finish is called.
-    GrpcStart(this, [&] { Finish(s); });
+    GrpcStart(this, [&] { Finish(Bounded(s)); });
   }
 
   void OnDone() override {
@@ -193,6 +210,7 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
   v1::AddBodyRequest req_;
   v1::AddBodyHeader header_;
   std::string bytes_;
+  const std::string client_;  ///< ClientKey: the build pool's per-client bound
   ScenePtr scene_;
 };
 
@@ -201,7 +219,8 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
 grpc::Status ResolveScene(Core* core, const grpc::ServerContextBase& ctx, const std::string& id,
                           Role role, ScenePtr* out) {
   if (auto s = core->tokens.CheckAnyToken(ctx); !s.ok()) return s;
-  if (id.empty()) return InvalidArgument("scene_id", "is empty");
+  // The id's syntax first: nothing longer than an id is echoed or looked up.
+  if (auto s = ValidateId(id, "scene_id"); !s.ok()) return s;
   // Permission first: a caller without rights learns nothing about which scenes exist.
   if (auto s = core->tokens.Check(ctx, id, role); !s.ok()) return s;
   ScenePtr scene = core->scenes.Get(id);
@@ -374,7 +393,7 @@ grpc::ServerWriteReactor<v1::SceneEvent>* SceneServiceImpl::Watch(grpc::Callback
   const ServiceCall call(this);
   struct Reject final : grpc::ServerWriteReactor<v1::SceneEvent> {
     explicit Reject(const grpc::Status& s) {
-      GrpcStart(this, [&] { Finish(s); });
+      GrpcStart(this, [&] { Finish(Bounded(s)); });
     }
     void OnDone() override {
       GrpcTakeOver(this);
@@ -385,8 +404,8 @@ grpc::ServerWriteReactor<v1::SceneEvent>* SceneServiceImpl::Watch(grpc::Callback
   ScenePtr scene;
   if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kObserve, &scene); !s.ok())
     return new Reject(s);
-  if (!std::isfinite(req->rate_hz()) || req->rate_hz() < 0 || req->rate_hz() > 1000) {
-    return new Reject(InvalidArgument("rate_hz", "must be in (0, 1000] (0 means 60)"));
+  if (auto s = wire::CheckRange(req->rate_hz(), wire::kWatchRateHz, "rate_hz"); !s.ok()) {
+    return new Reject(s);
   }
   // Counted here (released in WatchReactor::OnDone) so concurrent Watch calls cannot overshoot.
   if (core_->observers.fetch_add(1) >= core_->limits.max_observers) {
@@ -395,7 +414,7 @@ grpc::ServerWriteReactor<v1::SceneEvent>* SceneServiceImpl::Watch(grpc::Callback
                                    "the server already has its limit of " +
                                        std::to_string(core_->limits.max_observers) + " observers"));
   }
-  return new WatchReactor(core_, std::move(scene), *req);
+  return new WatchReactor(core_, ctx, std::move(scene), *req);
 }
 
 }  // namespace hapticpd::server::internal

@@ -78,6 +78,16 @@ bool IsLoopback(const std::string& listen) {
   return host == "localhost" || host.rfind("127.", 0) == 0 || host == "::1";
 }
 
+/// Health: the whole server ("") and each service by its full name, as
+/// gRPC health clients and load balancers ask.
+void SetServing(grpc::Server* server, bool serving) {
+  grpc::HealthCheckServiceInterface* health = server->GetHealthCheckService();
+  health->SetServingStatus(serving);
+  for (const char* name : {"hapticpd.v1.SceneService", "hapticpd.v1.HapticService"}) {
+    health->SetServingStatus(name, serving);
+  }
+}
+
 }  // namespace
 
 struct HapticServer::Impl {
@@ -192,6 +202,7 @@ void HapticServer::Start() {
     if (!s.ok()) throw std::runtime_error(s.error_message());
   }
 
+  m.core.before_build = o.before_build;
   m.publishers = std::make_unique<internal::ObserverPublishers>();
   m.core.publishers = m.publishers.get();
   m.scene_service = std::make_unique<internal::SceneServiceImpl>(&m.core);
@@ -201,6 +212,17 @@ void HapticServer::Start() {
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
   builder.SetMaxReceiveMessageSize(o.limits.max_message_bytes);
+  // Keepalive: a frozen client or a half-open connection stops answering
+  // pings, and the connection and its calls (and their slots) go. Clients
+  // may ping every 5 s without data; more often is a strike (2 allowed).
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIME_MS,
+                             static_cast<int>(o.limits.keepalive_time_s * 1000));
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIMEOUT_MS,
+                             static_cast<int>(o.limits.keepalive_timeout_s * 1000));
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_PERMIT_WITHOUT_CALLS, 1);
+  builder.AddChannelArgument(GRPC_ARG_HTTP2_MAX_PINGS_WITHOUT_DATA, 0);
+  builder.AddChannelArgument(GRPC_ARG_HTTP2_MIN_RECV_PING_INTERVAL_WITHOUT_DATA_MS, 5000);
+  builder.AddChannelArgument(GRPC_ARG_HTTP2_MAX_PING_STRIKES, 2);
   builder.SetMaxSendMessageSize(std::max(o.limits.max_message_bytes, 64 << 20));
   std::string mode = "in-process only";
   if (!o.listen.empty()) {
@@ -230,7 +252,7 @@ void HapticServer::Start() {
     throw std::runtime_error("cannot listen on " + o.listen +
                              " (address in use or invalid HOST:PORT?)");
   }
-  m.server->GetHealthCheckService()->SetServingStatus(true);
+  SetServing(m.server.get(), true);
   {
     std::lock_guard lock(m.mu);
     m.started = true;
@@ -276,7 +298,7 @@ void HapticServer::Shutdown() {
   Log()->info("shutting down: {} sessions, {} observers", m.core.sessions.load(),
               m.core.observers.load());
   m.core.shutting_down.store(true);
-  m.server->GetHealthCheckService()->SetServingStatus(false);
+  SetServing(m.server.get(), false);
   m.core.StopCalls(nullptr, m.core.Unavailable());
   const auto grace = std::chrono::milliseconds(
       static_cast<std::int64_t>(std::max(0.0, m.options.shutdown_grace_s) * 1000));
@@ -318,6 +340,9 @@ HapticServer::Counts HapticServer::counts() const {
   c.observer_frames_dropped = m.core.stats.observer_frames_dropped.load();
   c.pd_calls = m.core.stats.pd_calls.load();
   c.torque_skipped = m.core.stats.torque_skipped.load();
+  c.updates_withheld = m.core.stats.updates_withheld.load();
+  c.sessions_idle_ended = m.core.stats.sessions_idle_ended.load();
+  c.observers_stalled = m.core.stats.observers_stalled.load();
   return c;
 }
 

@@ -9,13 +9,14 @@
 
 #include <grpcpp/channel.h>
 
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
 
 namespace hapticpd::server {
 
-/// Server limits; going over one gives RESOURCE_EXHAUSTED.
+/// Server limits; going over one of the counts gives RESOURCE_EXHAUSTED.
 struct Limits {
   std::size_t max_mesh_triangles = 2'000'000;
   std::size_t max_mesh_bytes = 256u << 20;  ///< per uploaded mesh file
@@ -24,6 +25,32 @@ struct Limits {
   int max_sessions = 16;
   int max_observers = 64;
   int max_message_bytes = 8 << 20;  ///< per received gRPC message
+
+  /// A ContactUpdate whose force (N) or torque (N m) is larger than these,
+  /// or that holds a non-finite number, is replaced before it is sent by
+  /// one with zero force and no rows (CONTACT_STATUS_WITHHELD).
+  double max_update_force = 1e4;
+  double max_update_torque = 1e3;
+
+  /// A device session that sends no message for this long ends with
+  /// DEADLINE_EXCEEDED, and an observer whose write has not completed for
+  /// this long is cancelled: either frees its slot. Behind a load balancer
+  /// (where keepalive pings stop at the balancer) this is what frees the
+  /// slot of a frozen client. <= 0 disables it.
+  double idle_timeout_s = 20;
+  /// HTTP/2 keepalive: the server pings each connection after this long
+  /// without a ping and drops the connection (cancelling its calls) when
+  /// the ping is not answered within keepalive_timeout_s. Clients may ping
+  /// at most every 5 s without data.
+  double keepalive_time_s = 10;
+  double keepalive_timeout_s = 10;
+
+  /// Mesh parsing and BVH builds (AddBody) run on this many threads; one
+  /// client (token, or peer address on an open server) has at most
+  /// max_builds_per_client of them at a time, so a large upload never
+  /// holds up another client's small one.
+  int build_threads = 2;
+  int max_builds_per_client = 1;
 };
 
 struct ServerOptions {
@@ -44,6 +71,9 @@ struct ServerOptions {
   double status_interval_s = 10;
   /// Seconds streams get to finish at shutdown before they are cancelled.
   double shutdown_grace_s = 2;
+  /// Tests only: called on a build thread before each AddBody build, with
+  /// the body's label (lets a test order builds without timing).
+  std::function<void(const std::string& label)> before_build;
 
   /// A server inside another program (the demo, benchmarks): loopback on a
   /// free port, no periodic status line, a short shutdown grace.
@@ -89,6 +119,9 @@ class HapticServer {
     std::uint64_t observer_frames_dropped = 0;
     std::uint64_t pd_calls = 0;        ///< PD queries run by device sessions
     std::uint64_t torque_skipped = 0;  ///< answers without torque (scene declares none)
+    std::uint64_t updates_withheld = 0;     ///< answers sent as CONTACT_STATUS_WITHHELD
+    std::uint64_t sessions_idle_ended = 0;  ///< device sessions ended by the idle timeout
+    std::uint64_t observers_stalled = 0;    ///< observers cancelled for a write stuck that long
   };
   Counts counts() const;
 

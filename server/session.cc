@@ -7,10 +7,13 @@
 //                        yet sent is replaced by a newer one
 #include <grpcpp/grpcpp.h>
 
+#include <cmath>
 #include <condition_variable>
 #include <thread>
 
 #include "pd/scene_pd.h"
+#include "proto/wire/ranges.h"
+#include "proto/wire/text.h"
 #include "server/convert.h"
 #include "server/scene_file.h"
 #include "server/services.h"
@@ -19,6 +22,40 @@ namespace hapticpd::server::internal {
 namespace {
 
 constexpr std::uint32_t kProtocolVersion = 1;
+
+bool Finite(const v1::Vec3& v) {
+  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
+}
+bool Finite(const v1::Pose& p) {
+  const v1::Quaternion& q = p.orientation();
+  return Finite(p.position()) && std::isfinite(q.w()) && std::isfinite(q.x()) &&
+         std::isfinite(q.y()) && std::isfinite(q.z());
+}
+double Norm(const v1::Vec3& v) { return std::sqrt(v.x() * v.x() + v.y() * v.y() + v.z() * v.z()); }
+
+/// Why an answer must not reach a motor, or null when it may.
+const char* UpdateProblem(const v1::ContactUpdate& u, double max_force, double max_torque) {
+  if (!Finite(u.force()) || !Finite(u.torque())) return "non-finite force or torque";
+  if (Norm(u.force()) > max_force) return "force over the server's --max-update-force";
+  if (Norm(u.torque()) > max_torque) return "torque over the server's --max-update-torque";
+  for (const v1::ContactRow& r : u.rows()) {
+    if (!Finite(r.point()) || !Finite(r.normal()) || !Finite(r.moment()) ||
+        !std::isfinite(r.depth()) || !std::isfinite(r.stiffness()) ||
+        !std::isfinite(r.static_friction()) || !std::isfinite(r.dynamic_friction()) ||
+        !std::isfinite(r.damping())) {
+      return "a non-finite contact row";
+    }
+  }
+  if (!Finite(u.pose_ref()) || !Finite(u.target_pose()) || !Finite(u.pd_translation()) ||
+      !Finite(u.rotation_axis())) {
+    return "a non-finite pose or PD vector";
+  }
+  for (double x : {u.depth(), u.validity_radius(), u.validity_angle(), u.target_stiffness(),
+                   u.target_rotational_stiffness(), u.sigma(), u.rotation_angle()}) {
+    if (!std::isfinite(x)) return "a non-finite depth, validity or stiffness";
+  }
+  return nullptr;
+}
 
 /// Two contact springs in series (probe and body material): k_p k_b / (k_p + k_b).
 double SeriesStiffness(double kp, double kb) { return kp + kb > 0 ? kp * kb / (kp + kb) : 0.0; }
@@ -80,6 +117,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     grpc::Status bad;
     {
       std::lock_guard lock(mb_mu_);
+      last_rx_ns_ = rx;
       if (req_.has_hello()) {
         if (hello_received_) {
           bad = InvalidArgument("hello", "sent twice (send it once, first)");
@@ -153,6 +191,11 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   void OnDone() override {
     GrpcTakeOver(this);
     Stop(grpc::Status::CANCELLED);
+    {
+      std::lock_guard lock(mb_mu_);
+      done_ = true;  // a worker waiting for the end of an idle session returns
+    }
+    mb_cv_.notify_all();
     // gRPC runs OnDone on its executor for non-inline reactors, never inside
     // the worker's Finish; the check only guards against joining itself.
     if (worker_.joinable()) {
@@ -204,7 +247,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     }
     if (!in_flight_ || force) {
       finish_called_ = true;
-      GrpcStart(this, [this, s = finish_status_] { Finish(s); });
+      GrpcStart(this, [this, s = Bounded(finish_status_)] { Finish(s); });
     }
   }
 
@@ -221,17 +264,59 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     grpc::Status end = Serve();
     if (!end.ok() && end.error_code() != grpc::StatusCode::CANCELLED) {
       Log()->info("session {} ends: {} {}", session_id_, StatusCodeName(end.error_code()),
-                  end.error_message());
+                  wire::Printable(end.error_message(), wire::kMaxStatusMessage));
     }
-    std::lock_guard lock(wr_mu_);
-    FinishLocked(end, false);
+    {
+      std::lock_guard lock(wr_mu_);
+      // An idle client may not be reading either: do not wait for the write
+      // in flight to finish first.
+      FinishLocked(end, idle_);
+    }
+    if (!idle_) return;
+    // A frozen client cannot take the status, and gRPC only ends the call
+    // once it has: cancel it if it has not ended soon after.
+    std::unique_lock lock(mb_mu_);
+    if (!mb_cv_.wait_for(lock, std::chrono::seconds(1), [&] { return done_; })) {
+      lock.unlock();
+      ctx_->TryCancel();
+    }
+  }
+
+  /// Waits until `ready` (under mb_mu_), a stop, or the idle timeout since
+  /// the client's last message. False when the caller must return *end.
+  template <class Ready>
+  bool WaitClient(std::unique_lock<std::mutex>& lock, Ready ready, grpc::Status* end) {
+    const double idle_s = core_->limits.idle_timeout_s;
+    for (;;) {
+      if (stop_) {
+        *end = stop_status_;
+        return false;
+      }
+      if (ready()) return true;
+      if (idle_s <= 0) {
+        mb_cv_.wait(lock);
+        continue;
+      }
+      const auto idle = std::chrono::nanoseconds(static_cast<std::int64_t>(idle_s * 1e9));
+      const std::int64_t deadline_ns = last_rx_ns_ + idle.count();
+      if (NowNs() >= deadline_ns) {
+        idle_ = true;
+        core_->stats.sessions_idle_ended.fetch_add(1, std::memory_order_relaxed);
+        *end = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED,
+                            fmt::format("no message from the client for {:g} s (the server's "
+                                        "idle timeout, serve --idle-timeout): session ended",
+                                        idle_s));
+        return false;
+      }
+      mb_cv_.wait_for(lock, std::chrono::nanoseconds(deadline_ns - NowNs()));
+    }
   }
 
   /// Waits for the hello or a stop; false on stop.
   grpc::Status WaitHello() {
     std::unique_lock lock(mb_mu_);
-    mb_cv_.wait(lock, [&] { return stop_ || hello_received_ || client_done_; });
-    if (stop_) return stop_status_;
+    grpc::Status end;
+    if (!WaitClient(lock, [&] { return hello_received_ || client_done_; }, &end)) return end;
     if (!hello_received_) return InvalidArgument("hello", "the stream ended before a hello");
     return grpc::Status::OK;
   }
@@ -274,8 +359,9 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       if (auto s = FromProto(h.material(), "hello.material", &probe_material_); !s.ok()) return s;
       has_probe_material_ = true;
     }
-    if (!std::isfinite(h.max_rate_hz()) || h.max_rate_hz() < 0) {
-      return InvalidArgument("hello.max_rate_hz", "must be finite and >= 0 (0: unlimited)");
+    if (auto s = wire::CheckRange(h.max_rate_hz(), wire::kMaxRateHz, "hello.max_rate_hz");
+        !s.ok()) {
+      return s;
     }
     if (h.max_rate_hz() > 0) {
       min_period_ = std::chrono::nanoseconds(static_cast<std::int64_t>(1e9 / h.max_rate_hz()));
@@ -284,6 +370,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     std::optional<pd::Mesh> mesh;
     switch (h.probe_case()) {
       case v1::Hello::kProbeBodyId: {
+        if (auto s = ValidateId(h.probe_body_id(), "hello.probe_body_id"); !s.ok()) return s;
         const SnapshotPtr snap = scene->snapshot();
         const BodyState* b = snap->Find(h.probe_body_id());
         if (b == nullptr) {
@@ -339,7 +426,8 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     *w->mutable_scene_config() = config;
     Send(&msg);
     Log()->info("session {} on scene '{}': {} probe of {} triangles, mode {}{}", session_id_,
-                scene_->id(), h.client_name().empty() ? "a" : h.client_name() + "'s",
+                scene_->id(),
+                h.client_name().empty() ? "a" : wire::Printable(h.client_name()) + "'s",
                 pm.num_triangles(), v1::PdMode_Name(h.mode()),
                 h.probe_case() == v1::Hello::kProbeBodyId
                     ? " (probe is body " + h.probe_body_id() + ")"
@@ -399,6 +487,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     const SnapshotPtr snap = scene_->snapshot();
     u->set_scene_revision(snap->revision);
     const double radius = 0.1 * probe_radius_;
+    last_pose_ = p.X_WA;
     if (mode_ == v1::PD_MODE_NONE || !needs_pd_) {
       u->set_status(v1::CONTACT_STATUS_NONE);
       ToProto(p.X_WA, u->mutable_target_pose());
@@ -479,7 +568,42 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     u->set_validity_radius(linear);
     u->set_validity_angle(linear / std::max(probe_->radius_about_com(), 1e-12));
     u->set_compute_time_us(result_.time_us);
-    PublishProbe(p, result_.wrench.force, u->depth());
+    if (!Withhold(u)) PublishProbe(p, result_.wrench.force, u->depth());
+  }
+
+  /// The last line of defence before a motor: an answer holding a
+  /// non-finite number, or a force or torque over the configured limit, is
+  /// replaced by zero force and no rows (CONTACT_STATUS_WITHHELD), keeping
+  /// what identifies it (sequence, poses, times). True when replaced.
+  bool Withhold(v1::ContactUpdate* u) {
+    const char* why = UpdateProblem(*u, core_->limits.max_update_force,
+                                    core_->limits.max_update_torque);
+    if (why == nullptr) return false;
+    core_->stats.updates_withheld.fetch_add(1, std::memory_order_relaxed);
+    if (withheld_++ == 0) {
+      Log()->warn("session {}: an answer was withheld ({}); it and any later ones go out as "
+                  "zero force, no rows (CONTACT_STATUS_WITHHELD)",
+                  session_id_, why);
+    }
+    u->clear_rows();
+    u->clear_body_ids();
+    u->clear_force();
+    u->clear_torque();
+    *u->mutable_target_pose() = u->pose_ref();
+    u->set_depth(0);
+    u->clear_pd_translation();
+    u->set_target_stiffness(0);
+    u->set_target_rotational_stiffness(0);
+    u->set_sigma(0);
+    u->set_rotation_angle(0);
+    u->clear_rotation_axis();
+    const double radius = 0.1 * probe_radius_;
+    u->set_validity_radius(radius);
+    u->set_validity_angle(radius / std::max(probe_->radius_about_com(), 1e-12));
+    if (!std::isfinite(u->compute_time_us())) u->set_compute_time_us(0);
+    u->set_status(v1::CONTACT_STATUS_WITHHELD);
+    PublishProbe(MailPose{u->sequence(), last_pose_, 0, 0}, Vec3::Zero(), 0);
+    return true;
   }
 
   /// Shows the answered probe pose to observers (a short lock, after PD).
@@ -506,8 +630,8 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       std::uint32_t superseded = 0;
       {
         std::unique_lock lock(mb_mu_);
-        mb_cv_.wait(lock, [&] { return stop_ || has_pose_ || client_done_; });
-        if (stop_) return stop_status_;
+        grpc::Status end;
+        if (!WaitClient(lock, [&] { return has_pose_ || client_done_; }, &end)) return end;
         if (!has_pose_) return grpc::Status::OK;  // client half-closed, everything answered
         if (min_period_.count() > 0) {
           mb_cv_.wait_until(lock, next_allowed, [&] { return stop_; });
@@ -549,6 +673,9 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   MailPose pose_;
   std::uint32_t superseded_ = 0;
   bool have_last_seq_ = false;
+  std::int64_t last_rx_ns_ = NowNs();  ///< the client's last message (the idle timeout)
+  bool idle_ = false;                  ///< the session ends for the idle timeout
+  bool done_ = false;                  ///< OnDone has run
   std::uint64_t last_seq_ = 0;
   std::uint64_t stale_poses_ = 0;
 
@@ -583,6 +710,8 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   pd::ScenePdData pd_data_;
   pd::ScenePdResult result_;
   pd::PenetrationRequest request_;
+  Pose last_pose_;
+  std::uint64_t withheld_ = 0;
 };
 
 }  // namespace

@@ -15,18 +15,23 @@ namespace {
 
 class LifecycleTest : public ::testing::TestWithParam<Transport> {};
 
-/// grpc.health.v1.Health/Check for the whole server, through the generic
-/// stub (request: empty message; response: field 1 = ServingStatus). On a
+/// grpc.health.v1.Health/Check for the whole server (`service` empty) or one
+/// service, through the generic stub (request: field 1 = service name;
+/// response: field 1 = ServingStatus; NOT_FOUND gives -1). On a
 /// completion queue drained by this thread: a callback on one of gRPC's
 /// threads would hand its result over through gRPC's own locks, which
 /// ThreadSanitizer cannot see (the tsan preset).
-int HealthStatus(const std::shared_ptr<grpc::Channel>& channel) {
+int HealthStatus(const std::shared_ptr<grpc::Channel>& channel, const std::string& service = "") {
   grpc::GenericStub stub(channel);
   grpc::ClientContext ctx;
   ctx.set_deadline(std::chrono::system_clock::now() + kCallDeadline);
   grpc::ByteBuffer req, resp;
-  grpc::Slice empty("");
-  req = grpc::ByteBuffer(&empty, 1);
+  std::string request;
+  if (!service.empty()) {
+    request = std::string(1, '\x0a') + static_cast<char>(service.size()) + service;
+  }
+  grpc::Slice body(request);
+  req = grpc::ByteBuffer(&body, 1);
   grpc::CompletionQueue cq;
   auto call = stub.PrepareUnaryCall(&ctx, "/grpc.health.v1.Health/Check", req, &cq);
   call->StartCall();
@@ -90,6 +95,10 @@ std::string ReflectionListing(const std::shared_ptr<grpc::Channel>& channel) {
 TEST_P(LifecycleTest, HealthAndReflection) {
   ServerHarness h(GetParam());
   EXPECT_EQ(HealthStatus(h.Channel()), 1);
+  // Per-service names, as health clients and balancers ask for them.
+  EXPECT_EQ(HealthStatus(h.Channel(), "hapticpd.v1.SceneService"), 1);
+  EXPECT_EQ(HealthStatus(h.Channel(), "hapticpd.v1.HapticService"), 1);
+  EXPECT_EQ(HealthStatus(h.Channel(), "hapticpd.v1.NoSuchService"), -1);
   const std::string listing = ReflectionListing(h.Channel());
   EXPECT_NE(listing.find("hapticpd.v1.SceneService"), std::string::npos);
   EXPECT_NE(listing.find("hapticpd.v1.HapticService"), std::string::npos);
