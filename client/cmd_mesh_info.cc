@@ -11,6 +11,7 @@
 #include "pd/mass_properties.h"
 #include "pd/mesh.h"
 #include "pd/shapes.h"
+#include "proto/wire/ranges.h"
 
 namespace hapticpd::cli {
 namespace {
@@ -101,6 +102,13 @@ void RegisterMeshInfo(CLI::App& app) {
   shape_help += "Shapes:";
   for (const auto& s : pd::shapes::ShapeNames()) shape_help += " " + s.name;
   cmd->add_option("--shape", opts->shape, shape_help);
+  // The full grammar, parameter by parameter, after the options.
+  cmd->footer(
+      "Shape specs: NAME, or NAME:P1,P2,... with no spaces; give no parameters (all\n"
+      "defaults) or at least every size parameter, then resolutions from the left.\n"
+      "Lengths are in metres; a server accepts lengths in " +
+      wire::Describe(wire::kShapeLength) + " and shapes within " +
+      wire::Describe(wire::kCoordinate) + "\nof their origin.\n\n" + pd::shapes::ShapeHelp());
   cmd->add_flag("--json", opts->json, "Print one JSON object");
   cmd->add_flag("--strict", opts->strict, "Treat degenerate (zero-area) triangles as errors");
   cmd->callback([opts] { RunMeshInfo(*opts); });

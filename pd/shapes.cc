@@ -572,154 +572,243 @@ Mesh Hammer(int resolution) {
 
 namespace {
 
-struct SpecEntry {
-  ShapeInfo info;
-  std::vector<std::string> params;  // parameter names, in order
-  std::vector<bool> integral;       // parameter i must be an integer
-};
+ShapeParam Length(const char* name, double def, const char* meaning, bool size = true) {
+  return {name, "m", meaning, def, false, true, size, false};
+}
+ShapeParam Count(const char* name, double def, int min, const char* meaning, bool size = false) {
+  return {name, "", meaning, def, true, false, size, false, min};
+}
 
-const std::vector<SpecEntry>& Catalogue() {
-  static const std::vector<SpecEntry> entries = {
-      {{"box", "box[:hx[,hy[,hz[,subdivisions]]]]",
-        "axis-aligned box from half extents [m], faces split into a grid (default 0.05 m cube, 1)",
-        "box:0.1,0.2,0.3"},
-       {"hx", "hy", "hz", "subdivisions"},
-       {false, false, false, true}},
-      {{"sphere", "sphere[:radius[,subdivisions]]",
-        "icosphere, 20*4^subdivisions triangles (default 0.05 m, 3 -> 1280)", "sphere:0.05,3"},
-       {"radius", "subdivisions"},
-       {false, true}},
-      {{"capsule", "capsule[:radius[,half_length[,segments[,rings]]]]",
-        "capsule along z, 4*segments*rings triangles (default 0.02 m, 0.04 m, 32, 8 -> 1024)",
-        "capsule:0.02,0.04"},
-       {"radius", "half_length", "segments", "rings"},
-       {false, false, true, true}},
-      {{"cylinder", "cylinder[:radius[,half_length[,segments]]]",
-        "closed cylinder along z, 4*segments triangles (default 0.05 m, 0.1 m, 32 -> 128)",
-        "cylinder:0.05,0.1,32"},
-       {"radius", "half_length", "segments"},
-       {false, false, true}},
-      {{"stick", "stick", "the seed paper's stick: cylinder r 5 mm, 15 cm long, 92 triangles",
-        "stick"},
-       {},
-       {}},
-      {{"torus", "torus[:major_radius[,minor_radius[,major_segments[,minor_segments]]]]",
-        "torus in the xy-plane, 2*major*minor triangles (default 0.06 m, 0.02 m, 48, 24 -> 2304)",
-        "torus:0.06,0.02"},
-       {"major_radius", "minor_radius", "major_segments", "minor_segments"},
-       {false, false, true, true}},
-      {{"torusknot", "torusknot[:p[,q[,radius[,tube_radius[,segments[,tube_segments]]]]]]",
-        "tube along a (p,q) torus knot (default trefoil 2,3, 0.05 m, 0.008 m, 256, 16 -> 8192)",
-        "torusknot:2,3"},
-       {"p", "q", "radius", "tube_radius", "segments", "tube_segments"},
-       {true, true, false, false, true, true}},
-      {{"plate", "plate[:width[,depth[,thickness[,subdivisions]]]]",
-        "thin box, width x, depth y, thickness z (default 0.2 m, 0.2 m, 0.004 m, 1 -> 12)",
-        "plate:0.2,0.2,0.004"},
-       {"width", "depth", "thickness", "subdivisions"},
-       {false, false, false, true}},
-      {{"spoon", "spoon[:resolution]",
-        "spoon stand-in, bowl + handle, 78*resolution^2 triangles (default 4 -> 1248)", "spoon"},
-       {"resolution"},
-       {true}},
-      {{"cup", "cup[:resolution]",
-        "mug stand-in, thick shell + handle, 528*resolution^2 triangles (default 4 -> 8448)",
-        "cup"},
-       {"resolution"},
-       {true}},
-      {{"hammer", "hammer[:resolution]",
-        "hammer stand-in, handle + head, 108*res^2+12*res triangles (default 4 -> 1776)", "hammer"},
-       {"resolution"},
-       {true}},
-  };
+const std::vector<ShapeInfo>& Catalogue() {
+  static const std::vector<ShapeInfo> entries = [] {
+    ShapeParam half_length = Length("half_length", 0.04,
+                                    "half the length of the straight part along z; 0 gives a "
+                                    "sphere");
+    half_length.zero_ok = true;
+    return std::vector<ShapeInfo>{
+        {"box",
+         "box[:hx,hy,hz[,subdivisions]]",
+         "axis-aligned box centred at the origin, from HALF extents",
+         "box:0.1,0.2,0.3",
+         {Length("hx", 0.05, "half extent along x (the box is 2 hx wide)"),
+          Length("hy", 0.05, "half extent along y"), Length("hz", 0.05, "half extent along z"),
+          Count("subdivisions", 1, 1, "grid cells along each face edge")},
+         "12 * subdivisions^2"},
+        {"sphere",
+         "sphere[:radius[,subdivisions]]",
+         "icosphere centred at the origin",
+         "sphere:0.05,3",
+         {Length("radius", 0.05, "radius of the circumscribed sphere"),
+          Count("subdivisions", 3, 0, "icosahedron refinements (each splits a face into four)")},
+         "20 * 4^subdivisions"},
+        {"capsule",
+         "capsule[:radius,half_length[,segments[,rings]]]",
+         "capsule centred at the origin, axis along z, length 2 (half_length + radius)",
+         "capsule:0.02,0.04",
+         {Length("radius", 0.02, "radius of the cylinder and the two hemispheres"), half_length,
+          Count("segments", 32, 3, "segments around the axis"),
+          Count("rings", 8, 1, "latitude bands per hemisphere")},
+         "4 * segments * rings (2 * segments * (2 * rings - 1) when half_length = 0)"},
+        {"cylinder",
+         "cylinder[:radius,half_length[,segments]]",
+         "closed cylinder centred at the origin, axis along z",
+         "cylinder:0.05,0.1,32",
+         {Length("radius", 0.05, "radius"),
+          Length("half_length", 0.1, "half the length along z (the cylinder spans 2 half_length)"),
+          Count("segments", 32, 3, "segments around the axis")},
+         "4 * segments"},
+        {"stick",
+         "stick",
+         "the seed paper's stick: a cylinder of radius 5 mm, 15 cm long",
+         "stick",
+         {},
+         "92"},
+        {"torus",
+         "torus[:major_radius,minor_radius[,major_segments[,minor_segments]]]",
+         "torus in the xy-plane centred at the origin",
+         "torus:0.06,0.02",
+         {Length("major_radius", 0.06, "radius of the tube's centre circle"),
+          Length("minor_radius", 0.02, "radius of the tube (less than major_radius)"),
+          Count("major_segments", 48, 3, "segments around z"),
+          Count("minor_segments", 24, 3, "segments around the tube")},
+         "2 * major_segments * minor_segments"},
+        {"torusknot",
+         "torusknot[:p,q,radius,tube_radius[,segments[,tube_segments]]]",
+         "tube along a (p, q) torus knot centred at the origin",
+         "torusknot:2,3,0.05,0.008",
+         {Count("p", 2, 1, "turns around the z axis (coprime with q)", true),
+          Count("q", 3, 1, "turns through the hole", true),
+          Length("radius", 0.05, "major radius of the torus the knot lies on"),
+          Length("tube_radius", 0.008, "radius of the tube"),
+          Count("segments", 256, 3, "samples along the curve"),
+          Count("tube_segments", 16, 3, "segments around the tube")},
+         "2 * segments * tube_segments"},
+        {"plate",
+         "plate[:width,depth,thickness[,subdivisions]]",
+         "thin box centred at the origin, from FULL extents",
+         "plate:0.2,0.2,0.004",
+         {Length("width", 0.2, "full extent along x"), Length("depth", 0.2, "full extent along y"),
+          Length("thickness", 0.004, "full extent along z"),
+          Count("subdivisions", 1, 1, "grid cells along each face edge")},
+         "12 * subdivisions^2"},
+        {"spoon",
+         "spoon[:resolution]",
+         "spoon stand-in (bowl + handle, about 19 cm long)",
+         "spoon",
+         {Count("resolution", 4, 1, "mesh resolution")},
+         "78 * resolution^2"},
+        {"cup",
+         "cup[:resolution]",
+         "mug stand-in (thick shell + handle, 9.5 cm tall)",
+         "cup",
+         {Count("resolution", 4, 1, "mesh resolution")},
+         "528 * resolution^2"},
+        {"hammer",
+         "hammer[:resolution]",
+         "hammer stand-in (handle + head, 30 cm long)",
+         "hammer",
+         {Count("resolution", 4, 1, "mesh resolution")},
+         "108 * resolution^2 + 12 * resolution"},
+    };
+  }();
   return entries;
 }
 
-std::string_view Trim(std::string_view s) {
-  while (!s.empty() && std::isspace(static_cast<unsigned char>(s.front()))) s.remove_prefix(1);
-  while (!s.empty() && std::isspace(static_cast<unsigned char>(s.back()))) s.remove_suffix(1);
-  return s;
+std::string Number(double v) {
+  std::ostringstream os;
+  os << v;
+  return os.str();
 }
 
-// Numbers parsed from a spec; absent trailing ones take the caller's fallback.
-class Params {
- public:
-  explicit Params(std::vector<double> values) : values_(std::move(values)) {}
-  double Real(std::size_t i, double fallback) const {
-    return i < values_.size() ? values_[i] : fallback;
+// Untrusted spec text quoted in a message: control characters and bytes
+// >= 0x7f escaped, cut after `max` bytes, so a megabyte spec cannot make a
+// megabyte exception message.
+std::string Clip(std::string_view s, std::size_t max = 64) {
+  std::string out;
+  for (std::size_t i = 0; i < s.size() && i < max; ++i) {
+    const auto c = static_cast<unsigned char>(s[i]);
+    if (c == '\\') {
+      out += "\\\\";
+    } else if (c < 0x20 || c >= 0x7f) {
+      static const char kHex[] = "0123456789abcdef";
+      out += "\\x";
+      out += kHex[c >> 4];
+      out += kHex[c & 15];
+    } else {
+      out += static_cast<char>(c);
+    }
   }
-  int Int(std::size_t i, int fallback) const {
-    return i < values_.size() ? static_cast<int>(values_[i]) : fallback;
-  }
-
- private:
-  std::vector<double> values_;
-};
-
-}  // namespace
-
-std::vector<ShapeInfo> ShapeNames() {
-  std::vector<ShapeInfo> out;
-  for (const SpecEntry& e : Catalogue()) out.push_back(e.info);
+  if (s.size() > max) out += "...(" + std::to_string(s.size()) + " bytes)";
   return out;
 }
 
+std::string Names(const std::vector<ShapeParam>& params, bool sizes_only) {
+  std::string list;
+  for (const ShapeParam& p : params) {
+    if (!sizes_only || p.size) list += (list.empty() ? "" : ",") + p.name;
+  }
+  return list;
+}
+
+// The exact triangle count of the builder for these values (see each
+// function's documentation).
+double TriangleCount(const std::string& name, const std::vector<double>& v) {
+  if (name == "box" || name == "plate") return 12 * v[3] * v[3];
+  if (name == "sphere") return 20 * std::pow(4.0, v[1]);
+  if (name == "capsule") return v[1] > 0 ? 4 * v[2] * v[3] : 2 * v[2] * (2 * v[3] - 1);
+  if (name == "cylinder") return 4 * v[2];
+  if (name == "stick") return 92;
+  if (name == "torus") return 2 * v[2] * v[3];
+  if (name == "torusknot") return 2 * v[4] * v[5];
+  if (name == "spoon") return 78 * v[0] * v[0];
+  if (name == "cup") return 528 * v[0] * v[0];
+  if (name == "hammer") return 108 * v[0] * v[0] + 12 * v[0];
+  throw std::logic_error("TriangleCount: no formula for " + name);
+}
+
+// A bound on |coordinate| of every vertex.
+double Reach(const std::string& name, const std::vector<double>& v) {
+  if (name == "box") return std::max({v[0], v[1], v[2]});
+  if (name == "plate") return std::max({v[0], v[1], v[2]}) / 2;
+  if (name == "sphere") return v[0];
+  if (name == "capsule") return v[0] + v[1];
+  if (name == "cylinder") return std::max(v[0], v[1]);
+  if (name == "torus") return v[0] + v[1];
+  if (name == "torusknot") return 1.5 * v[2] + v[3];
+  return 0.5;  // stick and the stand-ins: fixed geometry within half a metre
+}
+
+}  // namespace
+
+ShapeSpecError::ShapeSpecError(const std::string& spec, const std::string& problem)
+    : MeshError("shape spec '" + Clip(spec) + "': " + problem), problem_(problem) {}
+
+std::vector<ShapeInfo> ShapeNames() { return Catalogue(); }
+
 std::string ShapeHelp() {
-  std::size_t width = 0;
-  for (const SpecEntry& e : Catalogue()) width = std::max(width, e.info.usage.size());
   std::ostringstream os;
-  for (const SpecEntry& e : Catalogue()) {
-    os << "  " << e.info.usage << std::string(width + 2 - e.info.usage.size(), ' ')
-       << e.info.description << '\n';
+  for (const ShapeInfo& e : Catalogue()) {
+    os << "  " << e.usage << "\n      " << e.description << "; " << e.triangles
+       << " triangles (e.g. '" << e.example << "')\n";
+    for (const ShapeParam& p : e.params) {
+      os << "      " << p.name << std::string(p.name.size() < 15 ? 15 - p.name.size() : 1, ' ')
+         << (p.unit.empty() ? (p.integral ? "integer >= " + std::to_string(p.min) : "") : p.unit)
+         << ", default " << Number(p.default_value) << ": " << p.meaning << '\n';
+    }
   }
   return os.str();
 }
 
-Mesh MakeShape(const std::string& spec) {
-  auto fail = [&](const std::string& problem) -> MeshError {
-    return MeshError("shape spec '" + spec + "': " + problem);
-  };
-  const std::string_view whole = Trim(spec);
-  const std::size_t colon = whole.find(':');
-  const std::string name(Trim(whole.substr(0, colon)));
-  const SpecEntry* entry = nullptr;
-  for (const SpecEntry& e : Catalogue()) {
-    if (e.info.name == name) entry = &e;
+ShapeSpec ParseShapeSpec(const std::string& text) {
+  auto fail = [&](const std::string& problem) { return ShapeSpecError(text, problem); };
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    if (std::isspace(static_cast<unsigned char>(text[i]))) {
+      throw fail("whitespace is not allowed in a shape spec (at byte " + std::to_string(i) + ")");
+    }
+  }
+  const std::size_t colon = text.find(':');
+  const std::string name = text.substr(0, colon);
+  const ShapeInfo* entry = nullptr;
+  for (const ShapeInfo& e : Catalogue()) {
+    if (e.name == name) entry = &e;
   }
   if (entry == nullptr) {
     std::string known;
-    for (const SpecEntry& e : Catalogue()) known += (known.empty() ? "" : ", ") + e.info.name;
+    for (const ShapeInfo& e : Catalogue()) known += (known.empty() ? "" : ", ") + e.name;
     throw fail(name.empty() ? "empty shape name; known shapes: " + known
-                            : "unknown shape '" + name + "'; known shapes: " + known);
+                            : "unknown shape '" + Clip(name) + "'; known shapes: " + known);
   }
+  const std::vector<ShapeParam>& params = entry->params;
 
   std::vector<double> values;
-  if (colon != std::string_view::npos) {
-    std::string_view rest = whole.substr(colon + 1);
+  if (colon != std::string::npos) {
+    std::string_view rest = std::string_view(text).substr(colon + 1);
+    if (params.empty()) throw fail("'" + name + "' takes no parameters");
     while (true) {
       const std::size_t comma = rest.find(',');
-      const std::string_view token = Trim(rest.substr(0, comma));
+      const std::string_view token = rest.substr(0, comma);
       const std::size_t i = values.size();
-      if (entry->params.empty()) throw fail("'" + name + "' takes no parameters");
-      if (i >= entry->params.size()) {
-        std::string list;
-        for (const std::string& p : entry->params) list += (list.empty() ? "" : ",") + p;
-        throw fail("'" + name + "' takes at most " + std::to_string(entry->params.size()) +
-                   " parameter" + (entry->params.size() == 1 ? "" : "s") + " (" + list + ")");
+      if (i >= params.size()) {
+        throw fail("'" + name + "' takes at most " + std::to_string(params.size()) + " parameter" +
+                   (params.size() == 1 ? "" : "s") + " (" + Names(params, false) + ")");
       }
-      const std::string& pname = entry->params[i];
-      if (token.empty()) throw fail("parameter " + pname + " is empty");
+      const ShapeParam& p = params[i];
+      if (token.empty()) throw fail("parameter " + p.name + " is empty");
       double value = 0;
       const auto [end, ec] = std::from_chars(token.data(), token.data() + token.size(), value);
       if (ec != std::errc() || end != token.data() + token.size() || !std::isfinite(value)) {
-        throw fail("parameter " + pname + " '" + std::string(token) + "' is not a finite number");
+        throw fail("parameter " + p.name + " '" + Clip(token, 32) + "' is not a finite number");
       }
-      if (entry->integral[i]) {
+      if (p.integral) {
         if (value != std::floor(value)) {
-          throw fail("parameter " + pname + " '" + std::string(token) + "' must be an integer");
+          throw fail("parameter " + p.name + " '" + Clip(token, 32) + "' must be an integer");
         }
         if (std::abs(value) > 1e6) {
-          throw fail("parameter " + pname + " '" + std::string(token) + "' is out of range");
+          throw fail("parameter " + p.name + " '" + Clip(token, 32) + "' is out of range");
+        }
+        if (value < p.min) {
+          throw fail(p.name + " must be at least " + std::to_string(p.min) + ", got " +
+                     Number(value));
         }
       }
       values.push_back(value);
@@ -727,37 +816,79 @@ Mesh MakeShape(const std::string& spec) {
       rest = rest.substr(comma + 1);
     }
   }
-
-  const Params a(std::move(values));
-  try {
-    if (name == "box") {
-      return Box(Vec3(a.Real(0, 0.05), a.Real(1, 0.05), a.Real(2, 0.05)), a.Int(3, 1));
-    } else if (name == "sphere") {
-      return Sphere(a.Real(0, 0.05), a.Int(1, 3));
-    } else if (name == "capsule") {
-      return Capsule(a.Real(0, 0.02), a.Real(1, 0.04), a.Int(2, 32), a.Int(3, 8));
-    } else if (name == "cylinder") {
-      return Cylinder(a.Real(0, 0.05), a.Real(1, 0.1), a.Int(2, 32));
-    } else if (name == "stick") {
-      return Stick();
-    } else if (name == "torus") {
-      return Torus(a.Real(0, 0.06), a.Real(1, 0.02), a.Int(2, 48), a.Int(3, 24));
-    } else if (name == "torusknot") {
-      return TorusKnot(a.Int(0, 2), a.Int(1, 3), a.Real(2, 0.05), a.Real(3, 0.008), a.Int(4, 256),
-                       a.Int(5, 16));
-    } else if (name == "plate") {
-      return ThinPlate(a.Real(0, 0.2), a.Real(1, 0.2), a.Real(2, 0.004), a.Int(3, 1));
-    } else if (name == "spoon") {
-      return Spoon(a.Int(0, 4));
-    } else if (name == "cup") {
-      return Cup(a.Int(0, 4));
-    } else if (name == "hammer") {
-      return Hammer(a.Int(0, 4));
+  // Either every default or every size given: a partial size list (a box
+  // with one half extent) would silently take defaults for the rest.
+  std::size_t sizes = 0;
+  for (const ShapeParam& p : params) sizes += p.size ? 1 : 0;
+  if (!values.empty() && values.size() < sizes) {
+    std::string missing;
+    for (std::size_t i = values.size(); i < sizes; ++i) {
+      missing += (missing.empty() ? "" : ",") + params[i].name;
     }
-  } catch (const MeshError& e) {
-    throw fail(e.what());
+    throw fail("'" + name + "' needs all of " + Names(params, true) +
+               " or none (for the defaults); missing " + missing);
   }
-  throw fail("internal error: shape '" + name + "' has no builder");
+  for (std::size_t i = values.size(); i < params.size(); ++i) {
+    values.push_back(params[i].default_value);
+  }
+  if (name == "torusknot" &&
+      std::gcd(static_cast<long>(values[0]), static_cast<long>(values[1])) != 1) {
+    throw fail("p (" + Number(values[0]) + ") and q (" + Number(values[1]) +
+               ") must be coprime (otherwise the curve retraces itself)");
+  }
+  ShapeSpec out;
+  out.text = text;
+  out.name = name;
+  out.params = params;
+  out.values = std::move(values);
+  out.triangles = TriangleCount(name, out.values);
+  out.reach = Reach(name, out.values);
+  return out;
 }
+
+void CheckShapeSizes(const ShapeSpec& spec) {
+  for (std::size_t i = 0; i < spec.params.size(); ++i) {
+    const ShapeParam& p = spec.params[i];
+    const double v = spec.values[i];
+    if (!p.length || (p.zero_ok && v == 0)) continue;
+    if (!std::isfinite(v) || v <= 0) {
+      throw ShapeSpecError(spec.text, p.name + " must be positive" +
+                                          (p.zero_ok ? std::string(" or 0") : std::string()) +
+                                          " and finite, got " + Number(v));
+    }
+  }
+  if (spec.name == "torus" && spec.values[1] >= spec.values[0]) {
+    throw ShapeSpecError(spec.text, "minor_radius (" + Number(spec.values[1]) +
+                                        ") must be less than major_radius (" +
+                                        Number(spec.values[0]) + ")");
+  }
+}
+
+Mesh MakeShape(const ShapeSpec& spec) {
+  CheckShapeSizes(spec);
+  const std::vector<double>& a = spec.values;
+  auto n = [&](std::size_t i) { return static_cast<int>(a[i]); };
+  const std::string& name = spec.name;
+  try {
+    if (name == "box") return Box(Vec3(a[0], a[1], a[2]), n(3));
+    if (name == "sphere") return Sphere(a[0], n(1));
+    if (name == "capsule") return Capsule(a[0], a[1], n(2), n(3));
+    if (name == "cylinder") return Cylinder(a[0], a[1], n(2));
+    if (name == "stick") return Stick();
+    if (name == "torus") return Torus(a[0], a[1], n(2), n(3));
+    if (name == "torusknot") return TorusKnot(n(0), n(1), a[2], a[3], n(4), n(5));
+    if (name == "plate") return ThinPlate(a[0], a[1], a[2], n(3));
+    if (name == "spoon") return Spoon(n(0));
+    if (name == "cup") return Cup(n(0));
+    if (name == "hammer") return Hammer(n(0));
+  } catch (const ShapeSpecError&) {
+    throw;
+  } catch (const MeshError& e) {
+    throw ShapeSpecError(spec.text, e.what());
+  }
+  throw ShapeSpecError(spec.text, "internal error: shape '" + name + "' has no builder");
+}
+
+Mesh MakeShape(const std::string& spec) { return MakeShape(ParseShapeSpec(spec)); }
 
 }  // namespace hapticpd::pd::shapes

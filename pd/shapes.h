@@ -127,29 +127,95 @@ Mesh Cup(int resolution = 4);
 /// (`resolution` >= 1, default 4 -> 1776).
 Mesh Hammer(int resolution = 4);
 
+/// One parameter of a shape spec.
+struct ShapeParam {
+  std::string name;     // e.g. "radius"
+  std::string unit;     // "m" for lengths, "" for counts
+  std::string meaning;  // one line
+  double default_value;
+  bool integral;  // an integer (a count or a resolution)
+  bool length;    // a length in metres (the wire checks it against its range)
+  bool size;      // a size parameter: a spec gives all of them or none
+  bool zero_ok;   // a length that may also be 0 (capsule half_length)
+  int min = 0;    // smallest value of an integral parameter
+};
+
 /// One entry of the shape catalogue for `--help` output.
 struct ShapeInfo {
   std::string name;         // e.g. "sphere"
   std::string usage;        // e.g. "sphere[:radius[,subdivisions]]"
   std::string description;  // one line, with defaults
   std::string example;      // a valid spec, e.g. "sphere:0.05,3"
+  std::vector<ShapeParam> params;
+  std::string triangles;  // the triangle count formula, e.g. "20 * 4^subdivisions"
 };
 
 /// Every shape `MakeShape` understands, in a stable order.
 std::vector<ShapeInfo> ShapeNames();
 
-/// The catalogue formatted as one "usage  description" line per shape.
+/// The catalogue formatted for `--help`: per shape its usage, description
+/// and triangle count, then one line per parameter with unit, default and
+/// meaning.
 std::string ShapeHelp();
 
-/// Builds a shape from a spec `name[:p1[,p2...]]`, e.g. `box`,
-/// `box:0.1,0.2,0.3`, `sphere:0.05,3`, `stick`, `cup:2`. Parameters are the
-/// arguments of the function above in order (sizes in metres, resolutions as
-/// integers); each may be omitted from the right and then takes the function's
-/// default. Names: box, sphere, capsule, cylinder, stick, torus, torusknot,
-/// plate, spoon, cup, hammer (see ShapeNames() for the parameter lists).
-/// Throws MeshError naming the spec and the problem on an unknown name, a
-/// malformed or non-integral number, too many parameters, a non-positive size
-/// or a resolution out of range (including more than kMaxShapeTriangles).
+/// A shape spec that is well formed: the shape's name and every parameter's
+/// value (defaults filled in), known before anything is built.
+struct ShapeSpec {
+  std::string text;                // the spec as given
+  std::string name;                // catalogue name
+  std::vector<ShapeParam> params;  // the catalogue's parameters, in order
+  std::vector<double> values;      // one per parameter, defaults filled in
+  /// Exactly the number of triangles MakeShape builds, computed from the
+  /// parameters (in double so absurd resolutions cannot overflow; exact
+  /// below 2^53). May exceed kMaxShapeTriangles: MakeShape then throws.
+  double triangles = 0;
+  /// Bound on |coordinate| of every vertex [m] (the shape's reach from its
+  /// origin along any axis), computed from the parameters.
+  double reach = 0;
+};
+
+/// Thrown for a malformed or invalid spec; `problem()` is the message
+/// without the "shape spec '...': " prefix, so a caller can quote the spec
+/// its own way.
+class ShapeSpecError : public MeshError {
+ public:
+  ShapeSpecError(const std::string& spec, const std::string& problem);
+  const std::string& problem() const { return problem_; }
+
+ private:
+  std::string problem_;
+};
+
+/// Parses a spec without building anything. Grammar (no whitespace anywhere):
+///
+///   spec   = NAME | NAME ":" value ("," value)*
+///   value  = a decimal number (std::from_chars syntax, e.g. 0.05, 5e-2)
+///
+/// Either no parameters (every default) or at least all of the shape's size
+/// parameters, then optionally its resolution parameters from the left.
+/// Names: box, sphere, capsule, cylinder, stick, torus, torusknot, plate,
+/// spoon, cup, hammer (ShapeNames() lists each parameter with its unit).
+/// Throws ShapeSpecError on an unknown name, whitespace, a malformed,
+/// non-finite or non-integral number, a partial size list, too many
+/// parameters, a resolution below its minimum or above 1e6, or a torus knot
+/// with p, q not coprime. Lengths are only parsed (a caller with its own
+/// length range checks that first, then CheckShapeSizes); the triangle count
+/// is not checked against kMaxShapeTriangles (`triangles` says what a build
+/// would need).
+ShapeSpec ParseShapeSpec(const std::string& spec);
+
+/// The size checks of the builders, without building: every length positive
+/// and finite (capsule half_length may be 0), a torus's minor_radius below
+/// its major_radius. Throws ShapeSpecError.
+void CheckShapeSizes(const ShapeSpec& spec);
+
+/// Builds a parsed spec (CheckShapeSizes, then the shape's function).
+/// Throws ShapeSpecError, or MeshError over kMaxShapeTriangles.
+Mesh MakeShape(const ShapeSpec& spec);
+
+/// ParseShapeSpec then build, e.g. `box`, `box:0.1,0.2,0.3`,
+/// `sphere:0.05,3`, `stick`, `cup:2`. Throws ShapeSpecError / MeshError
+/// whose message names the spec and the problem.
 Mesh MakeShape(const std::string& spec);
 
 }  // namespace hapticpd::pd::shapes

@@ -8,6 +8,7 @@
 
 #include "hapticpd/v1/haptic.pb.h"
 #include "hapticpd/v1/scene.pb.h"
+#include "proto/wire/ranges.h"
 #include "server/convert.h"
 #include "server/scene_file.h"
 #include "server/services.h"
@@ -28,7 +29,9 @@ void CheckStatus(const grpc::Status& s) {
   if (!s.ok() && s.error_message().empty()) Fail("rejection without a message");
 }
 
-/// An accepted mesh is non-empty, indexed in range and finite.
+/// An accepted mesh is non-empty, indexed in range, finite and inside the
+/// wire's coordinate range (a sphere's normalised vertices may exceed its
+/// radius by rounding, hence the relative slack).
 void CheckMesh(const grpc::Status& s, const std::optional<pd::Mesh>& mesh) {
   CheckStatus(s);
   if (!s.ok()) return;
@@ -36,6 +39,9 @@ void CheckMesh(const grpc::Status& s, const std::optional<pd::Mesh>& mesh) {
   for (const auto& v : mesh->vertices()) {
     if (!std::isfinite(v.x()) || !std::isfinite(v.y()) || !std::isfinite(v.z())) {
       Fail("accepted a non-finite vertex");
+    }
+    if (v.cwiseAbs().maxCoeff() > wire::kCoordinate.hi * (1 + 1e-12)) {
+      Fail("accepted a vertex outside the coordinate range");
     }
   }
   for (const auto& t : mesh->triangles()) {
@@ -55,6 +61,9 @@ void CheckPose(const v1::Pose& p, std::string_view field) {
   if (s.ok() && (!pose.t.allFinite() || !pose.R.allFinite() ||
                  !(pose.R.transpose() * pose.R).isIdentity(1e-9))) {
     Fail("accepted a pose that is not finite and unit");
+  }
+  if (s.ok() && pose.t.cwiseAbs().maxCoeff() > wire::kCoordinate.hi) {
+    Fail("accepted a position outside the coordinate range");
   }
 }
 

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <map>
 #include <numbers>
 #include <string>
@@ -290,8 +291,8 @@ TEST(ShapesMakeShape, DefaultsMatchFunctions) {
 TEST(ShapesMakeShape, ParametersFromTheLeft) {
   const Mesh box = MakeShape("box:0.1,0.2,0.3");
   EXPECT_TRUE(box.bounds().hi.isApprox(Vec3(0.1, 0.2, 0.3)));
-  const Mesh partial = MakeShape(" box : 0.1 ");
-  EXPECT_TRUE(partial.bounds().hi.isApprox(Vec3(0.1, 0.05, 0.05)));
+  // Plate takes full extents where box takes half ones.
+  EXPECT_TRUE(MakeShape("plate:0.2,0.4,0.6").bounds().hi.isApprox(Vec3(0.1, 0.2, 0.3)));
   EXPECT_EQ(MakeShape("box:0.1,0.2,0.3,4").num_triangles(), 12u * 16);
   EXPECT_NEAR(MakeShape("sphere:0.02").bounding_radius(), 0.02, 1e-9);
   EXPECT_EQ(MakeShape("sphere:0.05,2").num_triangles(), 320u);
@@ -340,10 +341,138 @@ TEST(ShapesMakeShape, ClearErrors) {
   ExpectSpecError("box:0.1,0.1,0.1,1e9", "out of range");
   ExpectSpecError("cylinder:0.1,0.1,2", "segments must be at least 3");
   ExpectSpecError("torus:0.01,0.02", "minor_radius (0.02) must be less than major_radius");
-  ExpectSpecError("torusknot:2,4", "coprime");
+  ExpectSpecError("torusknot:2,4,0.05,0.008", "p (2) and q (4) must be coprime");
   ExpectSpecError("cup:0", "resolution must be at least 1");
   ExpectSpecError("cup:1000", "resolution too high");
-  ExpectSpecError("capsule:0.01,-0.01", "half_length must be non-negative");
+  ExpectSpecError("capsule:0.01,-0.01", "half_length must be positive or 0 and finite, got -0.01");
+}
+
+TEST(ShapesMakeShape, StrictGrammar) {
+  // No whitespace anywhere.
+  ExpectSpecError("stick ", "whitespace is not allowed in a shape spec (at byte 5)");
+  ExpectSpecError(" box", "whitespace is not allowed in a shape spec (at byte 0)");
+  ExpectSpecError("box: 0.1,0.1,0.1", "whitespace is not allowed in a shape spec (at byte 4)");
+  // Control characters are quoted escaped.
+  try {
+    MakeShape("box:0.1,0.1,0.1\n");
+    ADD_FAILURE() << "no exception";
+  } catch (const ShapeSpecError& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "shape spec 'box:0.1,0.1,0.1\\x0a': whitespace is not allowed in a shape spec (at "
+              "byte 15)");
+  }
+  // Every size parameter or none.
+  ExpectSpecError("box:0.1",
+                  "'box' needs all of hx,hy,hz or none (for the defaults); missing hy,hz");
+  ExpectSpecError("box:0.1,0.2", "missing hz");
+  ExpectSpecError("plate:0.4,0.4", "'plate' needs all of width,depth,thickness or none");
+  ExpectSpecError("capsule:0.02", "missing half_length");
+  ExpectSpecError("cylinder:0.02", "missing half_length");
+  ExpectSpecError("torus:0.06", "missing minor_radius");
+  ExpectSpecError("torusknot:2,3", "missing radius,tube_radius");
+  ExpectSpecError("box:", "parameter hx is empty");
+  ExpectSpecError("spoon:", "parameter resolution is empty");
+  // Exactly the sizes, or sizes plus resolutions, are fine.
+  EXPECT_EQ(MakeShape("sphere:0.05").num_triangles(), 1280u);
+  EXPECT_EQ(MakeShape("torusknot:2,3,0.05,0.008").num_triangles(), 8192u);
+  EXPECT_EQ(MakeShape("capsule:0.02,0").num_triangles(), 2u * 32 * 15);
+  // A megabyte spec gives a bounded message.
+  try {
+    MakeShape(std::string(1 << 20, 'x'));
+    ADD_FAILURE() << "no exception";
+  } catch (const MeshError& e) {
+    EXPECT_LT(std::string(e.what()).size(), 400u);
+  }
+}
+
+// The arithmetic count is the built count, for every shape at several
+// parameter sets: the server checks its triangle limit against it before
+// building anything.
+TEST(ShapesParseShapeSpec, CountIsTheBuiltCount) {
+  const char* specs[] = {"box",
+                         "box:0.1,0.2,0.3,1",
+                         "box:0.1,0.2,0.3,3",
+                         "sphere",
+                         "sphere:0.1,0",
+                         "sphere:0.1,1",
+                         "sphere:0.1,4",
+                         "capsule",
+                         "capsule:0.02,0.04,3,1",
+                         "capsule:0.02,0.04,7,5",
+                         "capsule:0.02,0,7,5",
+                         "capsule:0.02,0,12,1",
+                         "cylinder",
+                         "cylinder:0.05,0.1,3",
+                         "cylinder:0.05,0.1,17",
+                         "stick",
+                         "torus",
+                         "torus:0.06,0.02,3,3",
+                         "torus:0.06,0.02,11,5",
+                         "torusknot",
+                         "torusknot:2,3,0.05,0.008,3,3",
+                         "torusknot:3,2,0.05,0.008,40,7",
+                         "plate",
+                         "plate:0.2,0.2,0.004,1",
+                         "plate:0.2,0.2,0.004,5",
+                         "spoon:1",
+                         "spoon:3",
+                         "cup:1",
+                         "cup:2",
+                         "hammer:1",
+                         "hammer:3",
+                         "spoon",
+                         "cup",
+                         "hammer"};
+  std::map<std::string, int> seen;
+  for (const char* spec : specs) {
+    SCOPED_TRACE(spec);
+    const ShapeSpec p = ParseShapeSpec(spec);
+    ++seen[p.name];
+    const Mesh m = MakeShape(p);
+    EXPECT_EQ(p.triangles, static_cast<double>(m.num_triangles()));
+    const Vec3 far = m.bounds().lo.cwiseAbs().cwiseMax(m.bounds().hi.cwiseAbs());
+    EXPECT_LE(far.maxCoeff(), p.reach * (1 + 1e-12));
+  }
+  EXPECT_EQ(seen.size(), ShapeNames().size()) << "a catalogue shape has no row here";
+}
+
+TEST(ShapesParseShapeSpec, ValuesDefaultsAndLengths) {
+  const ShapeSpec box = ParseShapeSpec("box:0.1,0.2,0.3");
+  EXPECT_EQ(box.name, "box");
+  EXPECT_EQ(box.values, (std::vector<double>{0.1, 0.2, 0.3, 1}));
+  ASSERT_EQ(box.params.size(), 4u);
+  EXPECT_TRUE(box.params[0].length);
+  EXPECT_EQ(box.params[0].unit, "m");
+  EXPECT_FALSE(box.params[3].length);
+  EXPECT_EQ(ParseShapeSpec("sphere").values, (std::vector<double>{0.05, 3}));
+  // Counted, not built: far beyond kMaxShapeTriangles parses and says so.
+  const ShapeSpec huge = ParseShapeSpec("box:0.1,0.1,0.1,1000000");
+  EXPECT_EQ(huge.triangles, 12e12);
+  EXPECT_THROW(MakeShape(huge), MeshError);
+  EXPECT_EQ(ParseShapeSpec("sphere:0.1,1000000").triangles,
+            std::numeric_limits<double>::infinity());
+  // Lengths are only parsed; CheckShapeSizes applies the builders' rules.
+  const ShapeSpec negative = ParseShapeSpec("sphere:-1");
+  EXPECT_THROW(CheckShapeSizes(negative), ShapeSpecError);
+  EXPECT_THROW(CheckShapeSizes(ParseShapeSpec("torus:0.02,0.03")), ShapeSpecError);
+}
+
+TEST(ShapesMakeShape, HelpDocumentsEveryParameter) {
+  const std::string help = ShapeHelp();
+  for (const ShapeInfo& info : ShapeNames()) {
+    SCOPED_TRACE(info.name);
+    EXPECT_FALSE(info.triangles.empty());
+    EXPECT_NE(help.find(info.triangles), std::string::npos);
+    for (const ShapeParam& p : info.params) {
+      EXPECT_FALSE(p.meaning.empty()) << p.name;
+      EXPECT_EQ(p.unit, p.length ? "m" : "") << p.name;
+      EXPECT_NE(help.find("      " + p.name + " "), std::string::npos) << p.name;
+    }
+  }
+  EXPECT_NE(help.find("hx             m, default 0.05: half extent along x"), std::string::npos)
+      << help;
+  EXPECT_NE(help.find("width          m, default 0.2: full extent along x"), std::string::npos)
+      << help;
 }
 
 TEST(ShapesMakeShape, CatalogueExamplesBuild) {

@@ -211,15 +211,54 @@ TEST_F(BadInputTable, SceneServiceRequests) {
                   StatusCode::INVALID_ARGUMENT,
                   "header.spec.pose.orientation: quaternion norm 2.000000 is not 1 (a unit "
                   "quaternion w, x, y, z is required)"});
+  rows.push_back({"AddBody: negative stiffness",
+                  [&] {
+                    auto r = shape(MakePose(0, 0, 0));
+                    r.mutable_header()->mutable_spec()->mutable_material()->set_stiffness(-1);
+                    return Add({r});
+                  },
+                  StatusCode::INVALID_ARGUMENT,
+                  "header.spec.material.stiffness: must be in [0, 1e+07] N/m, got -1"});
+  rows.push_back({"AddBody: stiffness over its range",
+                  [&] {
+                    auto r = shape(MakePose(0, 0, 0));
+                    r.mutable_header()->mutable_spec()->mutable_material()->set_stiffness(1e9);
+                    return Add({r});
+                  },
+                  StatusCode::INVALID_ARGUMENT,
+                  "header.spec.material.stiffness: must be in [0, 1e+07] N/m, got 1e+09"});
   rows.push_back(
-      {"AddBody: negative stiffness",
+      {"AddBody: dynamic friction above static",
        [&] {
          auto r = shape(MakePose(0, 0, 0));
-         r.mutable_header()->mutable_spec()->mutable_material()->set_stiffness(-1);
+         auto* m = r.mutable_header()->mutable_spec()->mutable_material();
+         m->set_static_friction(0.5);
+         m->set_dynamic_friction(0.8);
          return Add({r});
        },
        StatusCode::INVALID_ARGUMENT,
-       "header.spec.material.stiffness: must be finite and non-negative, got -1.000000"});
+       "header.spec.material.dynamic_friction: must not exceed static_friction (0.8 > 0.5)"});
+  rows.push_back({"AddBody: position beyond 10 km",
+                  [&] { return Add({shape(MakePose(2e4, 0, 0))}); }, StatusCode::INVALID_ARGUMENT,
+                  "header.spec.pose.position.x: must be in [-10000, 10000] m, got 20000"});
+  rows.push_back(
+      {"AddBody: shape size out of range",
+       [&] { return Add({ShapeHeader("default", "sphere:1e-300", "", MakePose(0, 0, 0))}); },
+       StatusCode::INVALID_ARGUMENT,
+       "header.shape: shape spec 'sphere:1e-300': radius must be in [1e-06, 10000] m, got "
+       "1e-300"});
+  rows.push_back(
+      {"AddBody: whitespace in a shape spec",
+       [&] { return Add({ShapeHeader("default", "stick ", "", MakePose(0, 0, 0))}); },
+       StatusCode::INVALID_ARGUMENT,
+       "header.shape: shape spec 'stick ': whitespace is not allowed in a shape spec (at byte "
+       "5)"});
+  rows.push_back(
+      {"AddBody: partial shape parameters",
+       [&] { return Add({ShapeHeader("default", "box:0.1", "", MakePose(0, 0, 0))}); },
+       StatusCode::INVALID_ARGUMENT,
+       "header.shape: shape spec 'box:0.1': 'box' needs all of hx,hy,hz or none (for the "
+       "defaults); missing hy,hz"});
   rows.push_back({"AddBody: bad body id", [&] { return Add({shape(MakePose(0, 0, 0), "a b")}); },
                   StatusCode::INVALID_ARGUMENT,
                   "header.spec.body_id: may only contain A-Z a-z 0-9 _ . - (got 'a b')"});
@@ -247,11 +286,32 @@ TEST_F(BadInputTable, SceneServiceRequests) {
                   },
                   StatusCode::INVALID_ARGUMENT,
                   "header.inline_mesh.vertices[3]: must be a finite number, got nan"});
+  rows.push_back({"AddBody: inline vertex beyond 10 km",
+                  [&] {
+                    return Add({inline_mesh({0, 0, 0, 1e300, 0, 0, 0, 1, 0}, {0, 1, 2})});
+                  },
+                  StatusCode::INVALID_ARGUMENT,
+                  "header.inline_mesh.vertices[3]: must be in [-10000, 10000] m, got 1e+300"});
+  rows.push_back({"AddBody: inline mesh of no size",
+                  [&] {
+                    return Add({inline_mesh({0, 0, 0, 1e-9, 0, 0, 0, 1e-9, 0}, {0, 1, 2})});
+                  },
+                  StatusCode::INVALID_ARGUMENT,
+                  "header.inline_mesh: bounding-box diagonal 1.41421e-09 m is below the minimum "
+                  "of 1e-06 m"});
   rows.push_back(
       {"AddBody: too many triangles",
        [&] { return Add({ShapeHeader("default", "sphere:0.05,3", "", MakePose(0, 0, 0))}); },
        StatusCode::RESOURCE_EXHAUSTED,
        "header.shape: 1280 triangles exceed the server limit of 500"});
+  // Counted before anything is built: 12e12 triangles would take hours.
+  rows.push_back({"AddBody: shape resolution far too high",
+                  [&] {
+                    return Add(
+                        {ShapeHeader("default", "box:0.1,0.1,0.1,1000000", "", MakePose(0, 0, 0))});
+                  },
+                  StatusCode::RESOURCE_EXHAUSTED,
+                  "header.shape: 12000000000000 triangles exceed the server limit of 500"});
   rows.push_back({"AddBody: mesh bytes over the limit",
                   [&] {
                     return Add({obj, Chunk(std::string(3000, ' ')), Chunk(std::string(3000, ' '))});
@@ -281,6 +341,25 @@ TEST_F(BadInputTable, SceneServiceRequests) {
   rows.push_back({"CreateScene: bad id", [&] { return CreateId("has space"); },
                   StatusCode::INVALID_ARGUMENT,
                   "scene_id: may only contain A-Z a-z 0-9 _ . - (got 'has space')"});
+  rows.push_back({"CreateScene: gravity out of range",
+                  [&] {
+                    v1::CreateSceneRequest req;
+                    req.set_scene_id("new");
+                    req.mutable_config()->mutable_gravity()->set_z(-1000);
+                    return Create(req);
+                  },
+                  StatusCode::INVALID_ARGUMENT,
+                  "config.gravity.z: must be in [-100, 100] m/s^2, got -1000"});
+  rows.push_back({"CreateScene: bad probe shape",
+                  [&] {
+                    v1::CreateSceneRequest req;
+                    req.set_scene_id("new");
+                    req.mutable_config()->set_probe_shape("stick ");
+                    return Create(req);
+                  },
+                  StatusCode::INVALID_ARGUMENT,
+                  "config.probe_shape: shape spec 'stick ': whitespace is not allowed in a shape "
+                  "spec (at byte 5)"});
   rows.push_back({"CreateScene: existing id", [&] { return CreateId("lab"); },
                   StatusCode::ALREADY_EXISTS, "scene_id: scene 'lab' exists"});
   rows.push_back({"CreateScene: over the scene limit", [&] { return CreateId("third"); },
@@ -329,19 +408,18 @@ TEST_F(BadInputTable, CoupleHello) {
       {"bad probe shape",
        [&] { return Hello(with([](v1::Hello* h) { h->set_probe_shape("sphere:-1"); })); },
        StatusCode::INVALID_ARGUMENT,
-       "hello.probe_shape: shape spec 'sphere:-1': Sphere: radius must be positive and finite, got "
-       "-1"});
+       "hello.probe_shape: shape spec 'sphere:-1': radius must be in [1e-06, 10000] m, got -1"});
   rows.push_back({"unknown probe body",
                   [&] { return Hello(with([](v1::Hello* h) { h->set_probe_body_id("ghost"); })); },
                   StatusCode::NOT_FOUND,
                   "hello.probe_body_id: scene 'default' has no body 'ghost'"});
-  rows.push_back({"NaN probe stiffness",
-                  [&] {
-                    return Hello(with(
-                        [](v1::Hello* h) { h->mutable_material()->set_stiffness(std::nan("")); }));
-                  },
-                  StatusCode::INVALID_ARGUMENT,
-                  "hello.material.stiffness: must be finite and non-negative, got nan"});
+  rows.push_back(
+      {"NaN probe stiffness",
+       [&] {
+         return Hello(
+             with([](v1::Hello* h) { h->mutable_material()->set_stiffness(std::nan("")); }));
+       },
+       StatusCode::INVALID_ARGUMENT, "hello.material.stiffness: must be a finite number, got nan"});
   rows.push_back({"observe-only token", [&] { return Hello(Session::DefaultHello(), "obs"); },
                   StatusCode::PERMISSION_DENIED,
                   "token 'watcher' lacks role 'device' on scene 'default'"});

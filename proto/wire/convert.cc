@@ -1,4 +1,4 @@
-#include "server/convert.h"
+#include "proto/wire/convert.h"
 
 #include <fcntl.h>
 #include <unistd.h>
@@ -9,11 +9,14 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <sstream>
 #include <string>
+#include <tuple>
 
 #include "pd/shapes.h"
+#include "proto/wire/text.h"
 
-namespace hapticpd::server {
+namespace hapticpd::wire {
 namespace {
 
 std::string Join(std::string_view field, std::string_view sub) {
@@ -26,21 +29,45 @@ std::string Join(std::string_view field, std::string_view sub) {
 bool Finite(double x) { return std::isfinite(x); }
 
 grpc::Status CheckFinite(double x, std::string_view field) {
-  if (!Finite(x))
-    return InvalidArgument(field, "must be a finite number, got " + std::to_string(x));
+  if (!Finite(x)) return InvalidArgument(field, RangeProblem(x, kCoordinate));
   return grpc::Status::OK;
 }
 
-grpc::Status CheckTriangleLimit(std::size_t triangles, std::size_t limit, std::string_view field) {
-  if (triangles > limit) {
+/// A triangle count as an integer (exact below 2^53, where every count of a
+/// procedural shape up to 1e6-sized resolutions lies), else in e-notation.
+std::string CountText(double n) {
+  if (n < 9.0e15) return std::to_string(static_cast<std::uint64_t>(n));
+  std::ostringstream s;
+  s << n;
+  return s.str();
+}
+
+grpc::Status CheckTriangleLimit(double triangles, std::size_t limit, std::string_view field) {
+  if (!(triangles <= static_cast<double>(limit))) {
     return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
-                        std::string(field) + ": " + std::to_string(triangles) +
+                        std::string(field) + ": " + CountText(triangles) +
                             " triangles exceed the server limit of " + std::to_string(limit));
   }
   return grpc::Status::OK;
 }
 
+grpc::Status ShapeError(std::string_view field, const std::string& spec,
+                        const std::string& problem) {
+  return InvalidArgument(field, "shape spec '" + Printable(spec) + "': " + problem);
+}
+
 /// MeshError messages start with the source name; replace it by the field.
+grpc::Status CheckExtent(double diagonal, std::string_view field) {
+  // PD's tolerances are relative to a body's size; a point-like mesh has none.
+  if (!(diagonal >= kMinMeshExtent)) {
+    std::ostringstream s;
+    s << "bounding-box diagonal " << diagonal << " m is below the minimum of " << kMinMeshExtent
+      << " m";
+    return InvalidArgument(field, s.str());
+  }
+  return grpc::Status::OK;
+}
+
 std::string StripSource(const std::string& what, const std::string& source) {
   if (what.rfind(source, 0) == 0) {
     std::string rest = what.substr(source.size());
@@ -59,9 +86,9 @@ grpc::Status InvalidArgument(std::string_view field, std::string_view what) {
   return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, msg);
 }
 
-grpc::Status FromProto(const v1::Vec3& v, std::string_view field, Vec3* out) {
+grpc::Status FromProto(const v1::Vec3& v, std::string_view field, Vec3* out, const Range& range) {
   for (auto [x, name] : {std::pair{v.x(), "x"}, std::pair{v.y(), "y"}, std::pair{v.z(), "z"}}) {
-    if (auto s = CheckFinite(x, Join(field, name)); !s.ok()) return s;
+    if (auto s = CheckRange(x, range, Join(field, name)); !s.ok()) return s;
   }
   *out = Vec3(v.x(), v.y(), v.z());
   return grpc::Status::OK;
@@ -92,18 +119,30 @@ grpc::Status FromProto(const v1::Pose& p, std::string_view field, Pose* out) {
   return grpc::Status::OK;
 }
 
+std::string MaterialProblem(const v1::Material& m, std::string_view field) {
+  const std::tuple<double, const char*, const Range*> fields[] = {
+      {m.stiffness(), "stiffness", &kStiffness},
+      {m.rotational_stiffness(), "rotational_stiffness", &kRotationalStiffness},
+      {m.damping(), "damping", &kDamping},
+      {m.static_friction(), "static_friction", &kFriction},
+      {m.dynamic_friction(), "dynamic_friction", &kFriction}};
+  for (auto [x, name, range] : fields) {
+    if (std::string p = RangeProblem(x, *range); !p.empty()) return Join(field, name) + ": " + p;
+  }
+  // Kinetic friction above static would make a sliding contact stick harder
+  // than a resting one.
+  if (m.dynamic_friction() > m.static_friction()) {
+    std::ostringstream s;
+    s << Join(field, "dynamic_friction") << ": must not exceed static_friction ("
+      << m.dynamic_friction() << " > " << m.static_friction() << ")";
+    return s.str();
+  }
+  return {};
+}
+
 grpc::Status FromProto(const v1::Material& m, std::string_view field, pd::Material* out) {
-  const std::pair<double, const char*> fields[] = {
-      {m.stiffness(), "stiffness"},
-      {m.rotational_stiffness(), "rotational_stiffness"},
-      {m.damping(), "damping"},
-      {m.static_friction(), "static_friction"},
-      {m.dynamic_friction(), "dynamic_friction"}};
-  for (auto [x, name] : fields) {
-    if (!Finite(x) || x < 0) {
-      return InvalidArgument(Join(field, name),
-                             "must be finite and non-negative, got " + std::to_string(x));
-    }
+  if (std::string p = MaterialProblem(m, field); !p.empty()) {
+    return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, p);
   }
   out->stiffness = m.stiffness();
   out->rotational_stiffness = m.rotational_stiffness();
@@ -115,8 +154,23 @@ grpc::Status FromProto(const v1::Material& m, std::string_view field, pd::Materi
 
 grpc::Status ValidateTwist(const v1::Twist& t, std::string_view field) {
   Vec3 v;
-  if (auto s = FromProto(t.linear(), Join(field, "linear"), &v); !s.ok()) return s;
-  return FromProto(t.angular(), Join(field, "angular"), &v);
+  if (auto s = FromProto(t.linear(), Join(field, "linear"), &v, kLinearVelocity); !s.ok()) {
+    return s;
+  }
+  return FromProto(t.angular(), Join(field, "angular"), &v, kAngularVelocity);
+}
+
+grpc::Status CheckMeshRanges(const pd::Mesh& mesh, std::string_view field) {
+  const auto& vs = mesh.vertices();
+  for (std::size_t i = 0; i < vs.size(); ++i) {
+    for (int k = 0; k < 3; ++k) {
+      if (std::string p = RangeProblem(vs[i][k], kCoordinate); !p.empty()) {
+        return InvalidArgument(
+            field, "vertex " + std::to_string(i) + " coordinate " + "xyz"[k] + ": " + p);
+      }
+    }
+  }
+  return CheckExtent(mesh.bounds().Size().stableNorm(), field);
 }
 
 grpc::Status MeshFromInline(const v1::InlineMesh& m, std::string_view field,
@@ -139,9 +193,9 @@ grpc::Status MeshFromInline(const v1::InlineMesh& m, std::string_view field,
   for (std::size_t i = 0; i < nv; ++i) {
     for (int k = 0; k < 3; ++k) {
       const double x = m.vertices(static_cast<int>(3 * i + k));
-      if (!Finite(x)) {
-        return InvalidArgument(fv + "[" + std::to_string(3 * i + k) + "]",
-                               "must be a finite number, got " + std::to_string(x));
+      if (auto s = CheckRange(x, kCoordinate, fv + "[" + std::to_string(3 * i + k) + "]");
+          !s.ok()) {
+        return s;
       }
       vertices[i][k] = x;
     }
@@ -156,6 +210,12 @@ grpc::Status MeshFromInline(const v1::InlineMesh& m, std::string_view field,
     }
     triangles[i / 3][i % 3] = static_cast<Index>(idx);
   }
+  Vec3 lo = vertices[0], hi = vertices[0];
+  for (const Vec3& v : vertices) {
+    lo = lo.cwiseMin(v);
+    hi = hi.cwiseMax(v);
+  }
+  if (auto s = CheckExtent((hi - lo).stableNorm(), field); !s.ok()) return s;
   try {
     *out = pd::Mesh::FromArrays(std::move(vertices), std::move(triangles), std::string(field));
   } catch (const pd::MeshError& e) {
@@ -213,6 +273,7 @@ grpc::Status MeshFromBytes(const std::string& bytes, v1::MeshFormat format, std:
   try {
     pd::Mesh mesh = pd::LoadMesh(path.string());
     if (auto s = CheckTriangleLimit(mesh.num_triangles(), max_triangles, field); !s.ok()) return s;
+    if (auto s = CheckMeshRanges(mesh, field); !s.ok()) return s;
     *out = std::move(mesh);
   } catch (const pd::MeshError& e) {
     return InvalidArgument(field, StripSource(e.what(), path.string()));
@@ -220,14 +281,50 @@ grpc::Status MeshFromBytes(const std::string& bytes, v1::MeshFormat format, std:
   return grpc::Status::OK;
 }
 
+grpc::Status CheckShapeSpec(const std::string& spec, std::string_view field,
+                            std::size_t max_triangles, pd::shapes::ShapeSpec* parsed) {
+  pd::shapes::ShapeSpec p;
+  try {
+    p = pd::shapes::ParseShapeSpec(spec);
+    for (std::size_t i = 0; i < p.params.size(); ++i) {
+      const pd::shapes::ShapeParam& param = p.params[i];
+      if (!param.length || (param.zero_ok && p.values[i] == 0)) continue;
+      if (std::string r = RangeProblem(p.values[i], kShapeLength); !r.empty()) {
+        return ShapeError(field, spec, param.name + " " + r);
+      }
+    }
+    if (p.reach > kCoordinate.hi) {
+      std::ostringstream s;
+      s << "reaches " << p.reach << " m from its origin, beyond the coordinate range "
+        << Describe(kCoordinate);
+      return ShapeError(field, spec, s.str());
+    }
+    pd::shapes::CheckShapeSizes(p);
+  } catch (const pd::shapes::ShapeSpecError& e) {
+    return ShapeError(field, spec, e.problem());
+  }
+  // Counted, not built: a huge resolution costs nothing to reject.
+  if (auto s = CheckTriangleLimit(p.triangles, max_triangles, field); !s.ok()) return s;
+  if (p.triangles > static_cast<double>(pd::shapes::kMaxShapeTriangles)) {
+    return ShapeError(field, spec,
+                      "resolution too high: " + CountText(p.triangles) +
+                          " triangles, more than the limit of " +
+                          std::to_string(pd::shapes::kMaxShapeTriangles));
+  }
+  if (parsed != nullptr) *parsed = std::move(p);
+  return grpc::Status::OK;
+}
+
 grpc::Status MeshFromShape(const std::string& spec, std::string_view field,
                            std::size_t max_triangles, std::optional<pd::Mesh>* out) {
+  pd::shapes::ShapeSpec p;
+  if (auto s = CheckShapeSpec(spec, field, max_triangles, &p); !s.ok()) return s;
   try {
-    pd::Mesh mesh = pd::shapes::MakeShape(spec);
-    if (auto s = CheckTriangleLimit(mesh.num_triangles(), max_triangles, field); !s.ok()) return s;
-    *out = std::move(mesh);
+    *out = pd::shapes::MakeShape(p);
+  } catch (const pd::shapes::ShapeSpecError& e) {
+    return ShapeError(field, spec, e.problem());
   } catch (const pd::MeshError& e) {
-    return InvalidArgument(field, e.what());
+    return ShapeError(field, spec, e.what());
   }
   return grpc::Status::OK;
 }
@@ -238,7 +335,9 @@ grpc::Status ValidateId(const std::string& id, std::string_view field) {
   for (char c : id) {
     const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
                     c == '_' || c == '-' || c == '.';
-    if (!ok) return InvalidArgument(field, "may only contain A-Z a-z 0-9 _ . - (got '" + id + "')");
+    if (!ok)
+      return InvalidArgument(field,
+                             "may only contain A-Z a-z 0-9 _ . - (got '" + Printable(id) + "')");
   }
   return grpc::Status::OK;
 }
@@ -286,4 +385,4 @@ std::int64_t NowNs() {
       .count();
 }
 
-}  // namespace hapticpd::server
+}  // namespace hapticpd::wire

@@ -1,4 +1,4 @@
-#include "server/scene_file.h"
+#include "proto/wire/scene_file.h"
 
 #include <nlohmann/json.hpp>
 
@@ -8,10 +8,14 @@
 #include <fstream>
 #include <initializer_list>
 #include <sstream>
+#include <tuple>
+#include <utility>
 
 #include "pd/material.h"
+#include "proto/wire/convert.h"
+#include "proto/wire/ranges.h"
 
-namespace hapticpd::server {
+namespace hapticpd::wire {
 
 namespace {
 
@@ -30,7 +34,8 @@ constexpr Effects kEffects[] = {
 /// Parsing context: the file (for messages) and its folder.
 class Parser {
  public:
-  Parser(std::string path) : path_(std::move(path)) {
+  Parser(std::string path, std::size_t max_triangles)
+      : path_(std::move(path)), max_triangles_(max_triangles) {
     dir_ = std::filesystem::path(path_).parent_path();
   }
 
@@ -70,22 +75,42 @@ class Parser {
 
   double Number(const Json& j, const std::string& key) const {
     if (!j.is_number()) Fail(key, "expected a number");
-    const double v = j.get<double>();
-    if (!std::isfinite(v)) Fail(key, "must be finite");
-    return v;
+    return j.get<double>();
   }
 
-  double NonNegative(const Json& j, const std::string& key) const {
+  /// A number in `range`, with the RPCs' message.
+  double InRange(const Json& j, const std::string& key, const Range& range) const {
     const double v = Number(j, key);
-    if (v < 0) Fail(key, "must be >= 0 (got " + Format(v) + ")");
+    if (std::string p = RangeProblem(v, range); !p.empty()) Fail(key, p);
     return v;
   }
 
+  /// A shape spec, checked as AddBody / CreateScene check it (without
+  /// building it).
+  std::string Shape(const Json& j, const std::string& key) const {
+    const std::string spec = String(j, key);
+    if (grpc::Status s = CheckShapeSpec(spec, key, max_triangles_); !s.ok()) {
+      // The status message starts with the key already.
+      throw SceneFileError(path_ + ": " + s.error_message());
+    }
+    return spec;
+  }
+
+  /// N numbers, each in `range` (nullptr: finite).
   template <std::size_t N>
-  std::array<double, N> Numbers(const Json& j, const std::string& key, const char* shape) const {
+  std::array<double, N> Numbers(const Json& j, const std::string& key, const char* shape,
+                                const Range* range) const {
     if (!j.is_array() || j.size() != N) Fail(key, std::string("expected ") + shape);
     std::array<double, N> out{};
-    for (std::size_t i = 0; i < N; ++i) out[i] = Number(j[i], key + "[" + std::to_string(i) + "]");
+    for (std::size_t i = 0; i < N; ++i) {
+      const std::string k = key + "[" + std::to_string(i) + "]";
+      out[i] = Number(j[i], k);
+      if (range != nullptr) {
+        if (std::string p = RangeProblem(out[i], *range); !p.empty()) Fail(k, p);
+      } else if (!std::isfinite(out[i])) {
+        Fail(k, "must be finite");
+      }
+    }
     return out;
   }
 
@@ -105,18 +130,23 @@ class Parser {
     OnlyKeys(j, key, {"position", "orientation"});
     v1::Pose p;
     if (j.contains("position")) {
-      const auto a = Numbers<3>(j["position"], key + ".position", "[x, y, z]");
+      const auto a = Numbers<3>(j["position"], key + ".position", "[x, y, z]", &kCoordinate);
       p.mutable_position()->set_x(a[0]);
       p.mutable_position()->set_y(a[1]);
       p.mutable_position()->set_z(a[2]);
     }
     if (j.contains("orientation")) {
-      const auto a = Numbers<4>(j["orientation"], key + ".orientation", "[w, x, y, z]");
+      const auto a = Numbers<4>(j["orientation"], key + ".orientation", "[w, x, y, z]", nullptr);
       auto* q = p.mutable_orientation();
       q->set_w(a[0]);
       q->set_x(a[1]);
       q->set_y(a[2]);
       q->set_z(a[3]);
+    }
+    // The RPCs' pose check (unit quaternion).
+    Pose pose;
+    if (grpc::Status st = FromProto(p, key, &pose); !st.ok()) {
+      throw SceneFileError(path_ + ": " + st.error_message());
     }
     return p;
   }
@@ -128,7 +158,7 @@ class Parser {
         {"stiffness", "rotational_stiffness", "damping", "static_friction", "dynamic_friction"});
     const pd::Material d;
     auto get = [&](const char* name, double def) {
-      return j.contains(name) ? NonNegative(j[name], key + "." + name) : def;
+      return j.contains(name) ? Number(j[name], key + "." + name) : def;
     };
     v1::Material m;
     m.set_stiffness(get("stiffness", d.stiffness));
@@ -136,11 +166,8 @@ class Parser {
     m.set_damping(get("damping", d.damping));
     m.set_static_friction(get("static_friction", d.static_friction));
     m.set_dynamic_friction(get("dynamic_friction", d.dynamic_friction));
-    if (m.dynamic_friction() > m.static_friction()) {
-      Fail(key + ".dynamic_friction", "must not exceed static_friction (" +
-                                          Format(m.dynamic_friction()) + " > " +
-                                          Format(m.static_friction()) + ")");
-    }
+    // The RPCs' check (ranges, friction order), message and all.
+    if (std::string p = MaterialProblem(m, key); !p.empty()) throw SceneFileError(path_ + ": " + p);
     return m;
   }
 
@@ -154,7 +181,7 @@ class Parser {
     if (b.contains("mesh")) {
       out.mesh_path = MeshPath(b["mesh"], key + ".mesh");
     } else {
-      out.shape = String(b["shape"], key + ".shape");
+      out.shape = Shape(b["shape"], key + ".shape");
     }
     v1::BodySpec& spec = out.spec;
     if (b.contains("id")) spec.set_body_id(String(b["id"], key + ".id"));
@@ -179,21 +206,16 @@ class Parser {
       Fail(key, "give at most one of \"mesh\" (a file) or \"shape\"");
     }
     if (j.contains("mesh")) p.mesh_path = MeshPath(j["mesh"], key + ".mesh");
-    if (j.contains("shape")) p.shape = String(j["shape"], key + ".shape");
-    auto positive = [&](const char* name) {
+    if (j.contains("shape")) p.shape = Shape(j["shape"], key + ".shape");
+    auto get = [&](const char* name, const Range& range) {
       if (!j.contains(name)) return 0.0;
-      const double v = NonNegative(j[name], key + "." + name);
-      if (v == 0) Fail(key + "." + name, "must be > 0");
-      return v;
+      return InRange(j[name], key + "." + name, range);  // 0: not given, as over the wire
     };
-    p.mass = positive("mass");
-    p.inertia = positive("inertia");
+    p.mass = get("mass", kProbeMass);
+    p.inertia = get("inertia", kProbeInertia);
     // The override is the probe's inertia per mass (PDg's object norm).
     if (p.inertia > 0 && p.mass == 0) {
       Fail(key + ".inertia", "needs \"mass\" too (the override is inertia / mass)");
-    }
-    if (p.inertia > 0 && !std::isfinite(p.inertia / p.mass)) {
-      Fail(key + ".inertia", "inertia / mass is not finite");
     }
     v1::SceneConfig& c = f->config;
     c.set_probe_shape(p.shape);
@@ -249,7 +271,7 @@ class Parser {
     if (j.contains("effects")) ParseEffects(j["effects"], "effects", &c);
     // Gravity: -z, unless given.
     std::array<double, 3> g{0, 0, -9.81};
-    if (j.contains("gravity")) g = Numbers<3>(j["gravity"], "gravity", "[x, y, z]");
+    if (j.contains("gravity")) g = Numbers<3>(j["gravity"], "gravity", "[x, y, z]", &kGravity);
     c.mutable_gravity()->set_x(g[0]);
     c.mutable_gravity()->set_y(g[1]);
     c.mutable_gravity()->set_z(g[2]);
@@ -260,13 +282,10 @@ class Parser {
       RequireObject(t, "texture");
       OnlyKeys(t, "texture", {"amplitude", "frequency"});
       if (t.contains("amplitude")) {
-        c.set_texture_amplitude(NonNegative(t["amplitude"], "texture.amplitude"));
+        c.set_texture_amplitude(InRange(t["amplitude"], "texture.amplitude", kTextureAmplitude));
       }
       if (t.contains("frequency")) {
-        const double hz = NonNegative(t["frequency"], "texture.frequency");
-        // Above half the 1 kHz servo rate a vibration aliases.
-        if (hz <= 0 || hz > 500) Fail("texture.frequency", "must be in (0, 500] Hz");
-        c.set_texture_frequency(hz);
+        c.set_texture_frequency(InRange(t["frequency"], "texture.frequency", kTextureFrequency));
       }
     }
     if (j.contains("probe")) ParseProbe(j["probe"], "probe", &f);
@@ -280,32 +299,29 @@ class Parser {
     return f;
   }
 
-  static std::string Format(double v) {
-    std::ostringstream s;
-    s << v;
-    return s.str();
-  }
-
  private:
   std::string path_;
+  std::size_t max_triangles_;
   std::filesystem::path dir_;
 };
 
 }  // namespace
 
-SceneFile ParseSceneJson(const std::string& text, const std::string& path) {
-  return Parser(path).Parse(text);
+SceneFile ParseSceneJson(const std::string& text, const std::string& path,
+                         std::size_t max_triangles) {
+  return Parser(path, max_triangles).Parse(text);
 }
 
-SceneFile ParseSceneFile(const std::string& path) {
+SceneFile ParseSceneFile(const std::string& path, std::size_t max_triangles) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw SceneFileError(path + ": cannot open scene file");
   std::ostringstream ss;
   ss << in.rdbuf();
-  return ParseSceneJson(ss.str(), path);
+  return ParseSceneJson(ss.str(), path, max_triangles);
 }
 
-std::string CheckSceneConfig(const v1::SceneConfig& c, const std::string& field) {
+std::string CheckSceneConfig(const v1::SceneConfig& c, const std::string& field,
+                             std::size_t max_triangles) {
   for (int i = 0; i < c.effects_size(); ++i) {
     const std::string k = field + ".effects[" + std::to_string(i) + "]";
     const int e = c.effects(i);
@@ -316,22 +332,27 @@ std::string CheckSceneConfig(const v1::SceneConfig& c, const std::string& field)
   }
   if (!v1::PdMode_IsValid(c.pd_mode())) return field + ".pd_mode: unknown PD mode";
   const v1::Vec3& g = c.gravity();
-  if (!std::isfinite(g.x()) || !std::isfinite(g.y()) || !std::isfinite(g.z())) {
-    return field + ".gravity: must be finite";
+  for (auto [x, name] : {std::pair{g.x(), "x"}, std::pair{g.y(), "y"}, std::pair{g.z(), "z"}}) {
+    if (std::string p = RangeProblem(x, kGravity); !p.empty()) {
+      return field + ".gravity." + name + ": " + p;
+    }
   }
-  const std::pair<const char*, double> nonneg[] = {{"texture_amplitude", c.texture_amplitude()},
-                                                   {"texture_frequency", c.texture_frequency()},
-                                                   {"probe_mass", c.probe_mass()},
-                                                   {"probe_inertia", c.probe_inertia()}};
-  for (const auto& [name, v] : nonneg) {
-    if (!std::isfinite(v) || v < 0) return field + "." + name + ": must be finite and >= 0";
+  const std::tuple<const char*, double, const Range*> ranged[] = {
+      {"texture_amplitude", c.texture_amplitude(), &kTextureAmplitude},
+      {"texture_frequency", c.texture_frequency(), &kTextureFrequency},
+      {"probe_mass", c.probe_mass(), &kProbeMass},
+      {"probe_inertia", c.probe_inertia(), &kProbeInertia}};
+  for (const auto& [name, v, range] : ranged) {
+    if (std::string p = RangeProblem(v, *range); !p.empty()) return field + "." + name + ": " + p;
   }
-  if (c.texture_frequency() > 500) return field + ".texture_frequency: must be <= 500 Hz";
   if (c.probe_inertia() > 0 && !(c.probe_mass() > 0)) {
     return field + ".probe_inertia: needs probe_mass > 0 (the override is inertia / mass)";
   }
-  if (c.probe_inertia() > 0 && !std::isfinite(c.probe_inertia() / c.probe_mass())) {
-    return field + ".probe_inertia: probe_inertia / probe_mass is not finite";
+  if (!c.probe_shape().empty()) {
+    if (grpc::Status s = CheckShapeSpec(c.probe_shape(), field + ".probe_shape", max_triangles);
+        !s.ok()) {
+      return s.error_message();
+    }
   }
   return {};
 }
@@ -374,4 +395,4 @@ bool SceneHasEffect(const v1::SceneConfig& c, v1::Effect e) {
   return false;
 }
 
-}  // namespace hapticpd::server
+}  // namespace hapticpd::wire
