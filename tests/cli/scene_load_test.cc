@@ -229,9 +229,16 @@ TEST_F(SceneLoadTest, RejectedBodyRollsTheSceneBack) {
        {"bodies[2] ('n'): INVALID_ARGUMENT: chunk", "scene 'half' deleted again"}},
       {R"([{"id": "a", "shape": "box"}, {"id": "a", "shape": "sphere"}])",
        {"bodies[1] ('a'): ALREADY_EXISTS", "scene 'half' deleted again"}},
-      {R"([{"shape": "box"}, {"shape": "blob"}])",
-       {"bodies[1]: INVALID_ARGUMENT: header.shape", "blob", "scene 'half' deleted again"}},
+      // The file parses (shapes are checked there, mesh files only by the
+      // server): a mesh 100 km away is the server's to reject.
+      {R"([{"shape": "box"}, {"mesh": "far.obj"}])",
+       {"bodies[1]: INVALID_ARGUMENT: chunk: vertex 0 coordinate x: must be in [-10000, 10000] m, "
+        "got 100000",
+        "scene 'half' deleted again"}},
   };
+  Write("far.obj",
+        "v 100000 0 0\nv 100001 0 0\nv 100000 1 0\nv 100000 0 1\n"
+        "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n");
   auto stub = server_.Scenes();
   for (const Case& c : cases) {
     SCOPED_TRACE(c.bodies);
