@@ -277,7 +277,8 @@ grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerCont
   if (req->description().size() > 1024) {
     return Done(ctx, InvalidArgument("description", "is longer than 1024 bytes"));
   }
-  if (const std::string e = CheckSceneConfig(req->config(), "config"); !e.empty()) {
+  if (const std::string e = CheckSceneConfig(req->config(), "config", core_->limits.max_mesh_triangles);
+      !e.empty()) {
     return Done(ctx, grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, e));
   }
   if (auto s = core_->tokens.Check(*ctx, req->scene_id(), Role::kAdmin); !s.ok())
@@ -362,10 +363,11 @@ grpc::ServerUnaryReactor* SceneServiceImpl::MoveBody(grpc::CallbackServerContext
   if (auto s = FromProto(req->pose(), "pose", &X_WB); !s.ok()) return Done(ctx, s);
   Vec3 v = Vec3::Zero(), w = Vec3::Zero();
   if (req->has_velocity()) {
-    if (auto s = FromProto(req->velocity().linear(), "velocity.linear", &v); !s.ok())
-      return Done(ctx, s);
-    if (auto s = FromProto(req->velocity().angular(), "velocity.angular", &w); !s.ok())
-      return Done(ctx, s);
+    // The velocity ranges first (FromProto alone checks finiteness and the
+    // coordinate range).
+    if (auto s = ValidateTwist(req->velocity(), "velocity"); !s.ok()) return Done(ctx, s);
+    (void)FromProto(req->velocity().linear(), "velocity.linear", &v, wire::kLinearVelocity);
+    (void)FromProto(req->velocity().angular(), "velocity.angular", &w, wire::kAngularVelocity);
   }
   std::uint64_t rev = 0;
   if (auto s = scene->MoveBody(req->body_id(), X_WB, &v, &w, &rev); !s.ok()) return Done(ctx, s);

@@ -112,7 +112,8 @@ struct HapticServer::Impl {
 };
 
 void HapticServer::Impl::LoadSceneFile(const std::string& path) {
-  const SceneFile f = ParseSceneFile(path);  // throws "FILE: KEY: problem"
+  // Throws "FILE: KEY: problem".
+  const SceneFile f = ParseSceneFile(path, core.limits.max_mesh_triangles);
   try {
     const std::string& id = f.scene_id;
     if (auto s = ValidateId(id, "scene"); !s.ok()) throw std::runtime_error(s.error_message());
@@ -133,6 +134,7 @@ void HapticServer::Impl::LoadSceneFile(const std::string& path) {
         } catch (const pd::MeshError& e) {
           throw std::runtime_error(where + ".mesh: " + e.what());
         }
+        s = wire::CheckMeshRanges(*mesh, where + ".mesh");
       } else {
         s = MeshFromShape(b.shape, where + ".shape", core.limits.max_mesh_triangles, &mesh);
       }

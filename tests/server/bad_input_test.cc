@@ -379,6 +379,60 @@ TEST_F(BadInputTable, SceneServiceRequests) {
   rows.push_back(
       {"AddBody: observe-only token", [&] { return Add({shape(MakePose(0, 0, 0))}, "obs"); },
        StatusCode::PERMISSION_DENIED, "token 'watcher' lacks role 'inject' on scene 'default'"});
+  rows.push_back({"any RPC: token without 'Bearer '",
+                  [&] {
+                    grpc::ClientContext ctx;
+                    ctx.AddMetadata("authorization", "adm");
+                    v1::ListScenesResponse list;
+                    return scenes_->ListScenes(&ctx, {}, &list);
+                  },
+                  StatusCode::UNAUTHENTICATED,
+                  "the authorization metadata must be 'Bearer TOKEN' (the 'Bearer ' prefix is "
+                  "missing)"});
+  rows.push_back({"GetScene: a 1 MB scene id",
+                  [&] {
+                    v1::GetSceneRequest req;
+                    req.set_scene_id(std::string(1 << 20, 'x'));
+                    v1::Scene scene;
+                    auto ctx = Ctx("adm");
+                    return scenes_->GetScene(ctx.get(), req, &scene);
+                  },
+                  StatusCode::INVALID_ARGUMENT, "scene_id: is longer than 64 characters"});
+  rows.push_back({"CreateScene: control characters in the id",
+                  [&] { return CreateId("a\nb\x1b[2J"); }, StatusCode::INVALID_ARGUMENT,
+                  "scene_id: may only contain A-Z a-z 0-9 _ . - (got 'a\\nb\\x1b[2J')"});
+  rows.push_back({"MoveBody: velocity out of range",
+                  [&] {
+                    v1::MoveBodyRequest req;
+                    req.set_scene_id("default");
+                    req.set_body_id("keep");
+                    req.mutable_velocity()->mutable_linear()->set_x(1000);
+                    v1::MoveBodyResponse resp;
+                    auto ctx = Ctx("adm");
+                    return scenes_->MoveBody(ctx.get(), req, &resp);
+                  },
+                  StatusCode::INVALID_ARGUMENT,
+                  "velocity.linear.x: must be in [-100, 100] m/s, got 1000"});
+  const std::string tet =
+      "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+  rows.push_back({"AddBody: more bytes than total_bytes",
+                  [&] {
+                    v1::AddBodyRequest h = obj;
+                    h.mutable_header()->set_total_bytes(10);
+                    return Add({h, Chunk(tet)});
+                  },
+                  StatusCode::INVALID_ARGUMENT,
+                  "chunk: " + std::to_string(tet.size()) +
+                      " bytes received, more than header.total_bytes 10"});
+  rows.push_back({"AddBody: fewer bytes than total_bytes",
+                  [&] {
+                    v1::AddBodyRequest h = obj;
+                    h.mutable_header()->set_total_bytes(tet.size() + 5);
+                    return Add({h, Chunk(tet)});
+                  },
+                  StatusCode::INVALID_ARGUMENT,
+                  "chunk: " + std::to_string(tet.size()) + " bytes received, header.total_bytes said " +
+                      std::to_string(tet.size() + 5)});
   Check(rows, "SceneService");
 }
 
@@ -420,6 +474,10 @@ TEST_F(BadInputTable, CoupleHello) {
              with([](v1::Hello* h) { h->mutable_material()->set_stiffness(std::nan("")); }));
        },
        StatusCode::INVALID_ARGUMENT, "hello.material.stiffness: must be a finite number, got nan"});
+  rows.push_back(
+      {"rate out of range",
+       [&] { return Hello(with([](v1::Hello* h) { h->set_max_rate_hz(1e6); })); },
+       StatusCode::INVALID_ARGUMENT, "hello.max_rate_hz: must be in [0, 100000] Hz, got 1e+06"});
   rows.push_back({"observe-only token", [&] { return Hello(Session::DefaultHello(), "obs"); },
                   StatusCode::PERMISSION_DENIED,
                   "token 'watcher' lacks role 'device' on scene 'default'"});
