@@ -16,17 +16,17 @@ import subprocess
 import sys
 import tempfile
 import threading
-import time
 import unittest
 from concurrent import futures
 
 try:
-    import grpc  # noqa: F401
-    import google.protobuf  # noqa: F401
+    import grpc
+    from google import protobuf
 except ImportError as e:
     print("SKIP: %s lacks grpc/protobuf (%s); install Debian's python3-grpcio and "
           "python3-protobuf (docker/install-deps.sh)" % (sys.executable, e))
     raise SystemExit(77)
+print("grpc %s, protobuf %s (%s)" % (grpc.__version__, protobuf.__version__, sys.executable))
 
 import hapticpd
 from hapticpd import HapticpdError

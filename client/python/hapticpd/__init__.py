@@ -54,4 +54,6 @@ __all__ = [
     "types_pb2",
     "scene_pb2",
     "haptic_pb2",
+    "scene_pb2_grpc",
+    "haptic_pb2_grpc",
 ]
