@@ -56,16 +56,27 @@ Wrench CouplingWrench(const CouplingGains& g, const Pose& X_WH, const Vec3& v_WH
   return w;
 }
 
+double ContactWeight(double max_depth, double margin) {
+  if (!(max_depth > -margin)) return 0.0;  // also -inf and NaN: no row near
+  if (max_depth >= 0 || margin <= 0) return 1.0;
+  return 1.0 + max_depth / margin;
+}
+
 void StepProxy(const Coupling& c, const Pose& X_WH, const Vec3& v_WH, const Vec3& w_WH,
-               const Vec6& W_ir, const Mat6& K_ir, double h, ProxyState* proxy) {
+               const Vec6& W_ir, const Mat6& K_ir, double h, ProxyState* proxy,
+               double contact_weight) {
   const CouplingGains& g = c.gains;
   const ProxyParams& p = c.proxy;
   const Wrench Wc = CouplingWrench(g, X_WH, v_WH, w_WH, *proxy, nullptr);
   Vec6 v;
   v << proxy->v_W, proxy->w_W;
   Vec6 f;
-  f.head<3>() = Wc.force - p.lin_damping * proxy->v_W;
-  f.tail<3>() = Wc.torque - p.ang_damping * proxy->w_W;
+  // Damping of the proxy's velocity relative to a blend of the world (at
+  // rest) and the handle: the same derivative in v, so the implicit matrix
+  // below is the same either way.
+  const double free = 1.0 - std::clamp(contact_weight, 0.0, 1.0);
+  f.head<3>() = Wc.force - p.lin_damping * (proxy->v_W - free * v_WH);
+  f.tail<3>() = Wc.torque - p.ang_damping * (proxy->w_W - free * w_WH);
   f += W_ir;
   Mat6 A = h * h * K_ir;
   Vec6 Kv = K_ir * v;

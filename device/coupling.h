@@ -8,10 +8,21 @@
 // The spring stretch is clamped to the device's force (torque) limit before
 // the damper is added, so the spring never stores energy the device could not
 // render and nothing springs back after a clamp. The device receives -F_c,
-// -tau_c. The proxy (mass m, isotropic inertia I, viscous damping to the
-// world b_p, b_rp that the user does not feel) is integrated by linearised
-// backward Euler with the contact stiffness of the active IR rows, so
-// contact rows far stiffer than the coupling stay stable at 1 kHz.
+// -tau_c. The proxy (mass m, isotropic inertia I, viscous damping b_p, b_rp
+// that the user does not feel) is integrated by linearised backward Euler
+// with the contact stiffness of the active IR rows, so contact rows far
+// stiffer than the coupling stay stable at 1 kHz.
+//
+// Where the proxy damps against matters for free space. Damping to the
+// world holds a proxy in contact still, but in free motion the hand drags
+// it: at handle speed v the coupling stretches until it pulls b_p v, and
+// the user feels that (0.3-0.6 N at 0.1-0.3 m/s with the default design).
+// Damping relative to the handle settles the proxy just as fast but is
+// zero at any steady velocity, so the proxy follows the hand and the hand
+// feels only the tiny proxy's inertia. StepProxy blends the two by a
+// contact weight in [0, 1]: 1 in contact and within a margin of a contact
+// row (as before: stiffness and passivity in contact are unchanged), 0 in
+// free space, continuous in between so no state jumps.
 #pragma once
 
 #include "device/haptic_device.h"
@@ -80,8 +91,16 @@ Wrench CouplingWrench(const CouplingGains& g, const Pose& X_WH, const Vec3& v_WH
 
 /// One linearised backward-Euler step of length h: the proxy under the
 /// coupling to the (held) handle, its damping, and the contact wrench W_ir
-/// with stiffness K_ir (both at the proxy's current pose). No allocation.
+/// with stiffness K_ir (both at the proxy's current pose). `contact_weight`
+/// in [0, 1] puts the proxy's own damping to the world (1, contact) or
+/// relative to the handle's velocity (0, free space). No allocation.
 void StepProxy(const Coupling& c, const Pose& X_WH, const Vec3& v_WH, const Vec3& w_WH,
-               const Vec6& W_ir, const Mat6& K_ir, double h, ProxyState* proxy);
+               const Vec6& W_ir, const Mat6& K_ir, double h, ProxyState* proxy,
+               double contact_weight = 1.0);
+
+/// The contact weight for StepProxy from the deepest contact row at the
+/// proxy pose (IrEvalInfo::max_depth): 1 at or past the surface, falling
+/// linearly to 0 at `margin` m outside it.
+double ContactWeight(double max_depth, double margin);
 
 }  // namespace hapticpd::device

@@ -124,6 +124,7 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
   IrPotential pot;
   EvaluateIrShifted(ir_, X_WP, shift_, W, K, &pot);
   info->active_rows = pot.touching_rows;
+  if (ir_.num_rows > 0 || ir_.use_target) info->max_depth = pot.max_depth;
   if (params_.energy_neutral_reentry) {
     // Energy-neutral re-entry. Scaling the contact wrench by a gain g(t)
     // puts g'(t) U(x) into the loop at a fixed pose (U: the rows' potential):

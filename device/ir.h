@@ -17,6 +17,7 @@
 
 #include <array>
 #include <cstdint>
+#include <limits>
 
 #include "device/haptic_device.h"
 
@@ -110,6 +111,10 @@ struct IrEvalInfo {
   double fade = 0;   ///< fade gain in [0, 1]
   double blend = 1;  ///< progress of the current blend in [0, 1]
   double shift = 0;  ///< m the rows' surface is moved into the body (energy-neutral re-entry)
+  /// m, the deepest row at the proxy pose (PDg: the generalised target row);
+  /// negative: the proxy is that far outside every row's surface. -inf
+  /// without an IR or rows.
+  double max_depth = -std::numeric_limits<double>::infinity();
 };
 
 /// Renders the latest IR at the proxy pose, once per servo tick. Blending:

@@ -127,7 +127,8 @@ void ServoLoop::Tick(std::int64_t now_ns) {
   effects_.Apply(EffectInput{&eval_.current(), r.W_ir, K_ir, proxy_.X_WP, proxy_.v_W, proxy_.w_W,
                              1e-9 * static_cast<double>(now_ns)},
                  &r.W_effects, &K_fx);
-  StepProxy(coupling_, r.X_WH, v_WH, w_WH, r.W_effects, K_fx, h, &proxy_);
+  r.contact_weight = ContactWeight(r.ir.max_depth, config_.free_space_margin_m);
+  StepProxy(coupling_, r.X_WH, v_WH, w_WH, r.W_effects, K_fx, h, &proxy_, r.contact_weight);
   // Link loss (stale IR): fade the output to zero in real time (a late tick
   // only fades faster); once it is zero, hold the proxy on the handle so the
   // coupling stretches nothing and nothing stale is felt when IRs return.

@@ -65,6 +65,10 @@ struct ServoConfig {
   /// link_fade_in_time_s. Both are measured on the loop's clock.
   double link_fade_time_s = 0.020;
   double link_fade_in_time_s = 0.100;
+  /// m: within this distance of a contact row's surface (and inside it) the
+  /// proxy damps against the world; farther out, against the handle, so
+  /// free motion is not dragged (coupling.h, ContactWeight).
+  double free_space_margin_m = 1e-3;
   Pose X_WD;  ///< device base frame in the world
   Pose X_PA;  ///< probe mesh frame A in the proxy frame P (P: at the probe's centre of mass)
   /// Real-time runner: spin this long before each deadline (after sleeping).
@@ -95,6 +99,8 @@ struct TickRecord {
   double startup_gain = 0;
   double link_gain = 1;  ///< output gain for link loss (1: fresh IR or none yet)
   bool clamped = false;
+  /// StepProxy's contact weight this tick: 1 in or near contact, 0 free.
+  double contact_weight = 1;
 };
 
 /// Counters other threads may read while the loop runs.
