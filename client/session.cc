@@ -14,7 +14,9 @@ using device::IrRow;
 using device::Pose;
 using device::Vec3;
 
-bool Finite(const Vec3& v) { return v.allFinite(); }
+/// Finite, and no coordinate beyond 1e6 m (a hundred times the server's
+/// coordinate range): larger numbers overflow in the servo loop's products.
+bool Finite(const Vec3& v) { return v.allFinite() && v.cwiseAbs().maxCoeff() <= 1e6; }
 
 Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
 
@@ -112,7 +114,10 @@ bool IrFromContactUpdate(const v1::ContactUpdate& u, const Pose& X_AP, std::int6
     const Vec3 p = ToVec(r.point());
     Vec3 n = ToVec(r.normal());
     const double depth = r.depth(), k = r.stiffness();
-    if (!Finite(p) || !Finite(n) || !std::isfinite(depth) || !std::isfinite(k) || k < 0) {
+    // Beyond these no server answer goes (its ranges: 1e4 m, 1e7 N/m);
+    // past them the loop's products overflow.
+    if (!Finite(p) || !Finite(n) || !std::isfinite(depth) || !std::isfinite(k) || k < 0 ||
+        std::abs(depth) > 1e6 || k > 1e9) {
       return false;
     }
     // Normals should be unit; PDg rows built from the PD vector over the
@@ -130,13 +135,7 @@ bool IrFromContactUpdate(const v1::ContactUpdate& u, const Pose& X_AP, std::int6
     row.dynamic_friction =
         std::isfinite(r.dynamic_friction()) ? std::max(0.0, r.dynamic_friction()) : 0;
     row.damping = std::isfinite(r.damping()) ? std::max(0.0, r.damping()) : 0;
-    if (ir->num_rows < device::kMaxIrRows) {
-      ir->rows[static_cast<std::size_t>(ir->num_rows++)] = row;
-      continue;
-    }
-    auto it = std::min_element(ir->rows.begin(), ir->rows.end(),
-                               [](const IrRow& a, const IrRow& b) { return a.depth < b.depth; });
-    if (it->depth < depth) *it = row;
+    device::AddIrRow(row, ir);
   }
   const bool in_contact = u.status() == v1::CONTACT_STATUS_PENETRATING ||
                           u.status() == v1::CONTACT_STATUS_CAP_REACHED ||

@@ -68,6 +68,16 @@ void EvaluateIrShifted(const IntermediateRep& ir, const Pose& X_WP, double shift
   if (pot) *pot = p;
 }
 
+void AddIrRow(const IrRow& row, IntermediateRep* ir) {
+  if (ir->num_rows < kMaxIrRows) {
+    ir->rows[static_cast<std::size_t>(ir->num_rows++)] = row;
+    return;
+  }
+  auto it = std::min_element(ir->rows.begin(), ir->rows.end(),
+                             [](const IrRow& a, const IrRow& b) { return a.depth < b.depth; });
+  if (it->depth < row.depth) *it = row;
+}
+
 bool InsideValidity(const IntermediateRep& ir, const Pose& X_WP) {
   if (ir.validity_radius > 0 && (X_WP.t - ir.X_WP_ref.t).norm() > ir.validity_radius) {
     return false;

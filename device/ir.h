@@ -59,6 +59,10 @@ struct IntermediateRep {
   double compute_time_us = 0;  ///< producer's PD time
 };
 
+/// Adds a row to `ir`; when it already holds kMaxIrRows, the new row
+/// replaces the shallowest one if it is deeper (the deepest rows are kept).
+void AddIrRow(const IrRow& row, IntermediateRep* ir);
+
 /// Raw (unblended, unfaded) IR wrench at X_WP: W = [force; torque about P's
 /// origin] and its stiffness K = -dW/dx (6x6, symmetric positive
 /// semi-definite; the rows active at X_WP). No allocation.

@@ -19,49 +19,29 @@ Pose LocalPdIrSource::X_PA() const { return Pose::FromTranslation(-probe_->mass(
 void LocalPdIrSource::Compute(const ProxySample& sample, IntermediateRep* ir) {
   const Pose X_WA = sample.X_WP * X_PA();
   pd::ComputeScenePdt(*probe_, X_WA, bodies_, options_.request, &data_, &result_);
+  pd::ContactModelOptions model_options;
+  model_options.validity_fraction = options_.validity_fraction;
+  pd::BuildContactModel(*probe_, X_WA, bodies_, result_, model_options, &model_);
   ir->sequence = sample.sequence;
   ir->sample_time_ns = sample.time_ns;
   ir->X_WP_ref = sample.X_WP;
   ir->use_target = false;
   ir->num_rows = 0;
   ir->compute_time_us = result_.time_us;
-  const Vec3 c = sample.X_WP.t;
-  double deepest = 0;
-  for (std::size_t b = 0; b < bodies_.size(); ++b) {
-    const pd::PenetrationResult& r = result_.bodies[b];
-    if (!result_.tested[b]) continue;
-    if (r.status != pd::PdStatus::kPenetratingSolved &&
-        r.status != pd::PdStatus::kPenetratingCapReached) {
-      continue;
-    }
-    deepest = std::max(deepest, r.depth);
-    const double k = bodies_[b].material.stiffness;
-    auto add = [&](const Vec3& p, const Vec3& n, double depth) {
-      if (depth <= 0) return;
-      IrRow row{p, n, (p - c).cross(n), depth, k};
-      if (ir->num_rows < kMaxIrRows) {
-        ir->rows[static_cast<std::size_t>(ir->num_rows++)] = row;
-        return;
-      }
-      // Full: replace the shallowest row if this one is deeper.
-      auto it = std::min_element(ir->rows.begin(), ir->rows.end(),
-                                 [](const IrRow& x, const IrRow& y) { return x.depth < y.depth; });
-      if (it->depth < depth) *it = row;
-    };
-    if (!r.regions.empty()) {
-      for (const pd::ContactRegion& g : r.regions) add(g.p_W, g.n_W, g.depth);
-    } else if (r.depth > 0) {
-      add(c, r.translation_W / r.depth, r.depth);
-    }
+  for (const pd::ContactRow& r : model_.rows) {
+    IrRow row{r.p_W, r.n_W, (r.p_W - model_.c_W).cross(r.n_W), r.depth, r.material.stiffness};
+    row.static_friction = r.material.static_friction;
+    row.dynamic_friction = r.material.dynamic_friction;
+    row.damping = r.material.damping;
+    AddIrRow(row, ir);
   }
   Vec6 W;
   Mat6 K;
   EvaluateIrRaw(*ir, sample.X_WP, &W, &K);
   ir->W_ref.force = W.head<3>();
   ir->W_ref.torque = W.tail<3>();
-  const double radius = probe_->radius_about_com();
-  ir->validity_radius = options_.validity_fraction * radius + deepest;
-  ir->validity_angle = radius > 0 ? ir->validity_radius / radius : 0;
+  ir->validity_radius = model_.validity_radius;
+  ir->validity_angle = model_.validity_angle;
 }
 
 void LocalPdIrSource::Pump(ServoLoop* loop, std::int64_t now_ns, bool stalled) {

@@ -17,15 +17,16 @@
 
 #include "device/ir.h"
 #include "device/servo_loop.h"
+#include "pd/contact_model.h"
 #include "pd/scene_pd.h"
 
 namespace hapticpd::device {
 
 struct LocalPdOptions {
   pd::PenetrationRequest request;
-  /// Validity region: linear radius = fraction * probe radius about its
-  /// centre of mass + depth; angular = that / the probe radius (the
-  /// proto's definition).
+  /// Validity region (pd::ContactModelOptions, the proto's definition):
+  /// linear radius = fraction * the probe's bounding radius + depth;
+  /// angular = that / the probe's radius about its centre of mass.
   double validity_fraction = 0.1;
   /// Synchronous mode (Pump): compute every this many ticks, deliver after
   /// this latency (a deterministic stand-in for the network and PD time).
@@ -72,6 +73,7 @@ class LocalPdIrSource {
   LocalPdOptions options_;
   pd::ScenePdData data_;
   pd::ScenePdResult result_;
+  pd::ContactModel model_;
   std::uint64_t tick_ = 0;
   struct Pending {
     std::uint64_t due_tick;

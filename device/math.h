@@ -34,10 +34,13 @@ inline Mat3 ExpRotation(const Vec3& w) {
 /// Re-orthonormalises a rotation matrix that drifted by integration.
 inline Mat3 Orthonormalize(const Mat3& R) { return Quat(R).normalized().toRotationMatrix(); }
 
-/// Scales v down to at most `limit` in norm (limit <= 0: zero).
+/// Scales v down to at most `limit` in norm (limit <= 0: zero). A
+/// non-finite v (or one whose norm overflows) gives zero: this is the last
+/// step before a motor.
 inline Vec3 ClampNorm(const Vec3& v, double limit) {
   if (limit <= 0) return Vec3::Zero();
   const double n = v.norm();
+  if (!std::isfinite(n)) return Vec3::Zero();
   return n > limit ? Vec3(v * (limit / n)) : v;
 }
 

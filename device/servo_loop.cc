@@ -129,6 +129,17 @@ void ServoLoop::Tick(std::int64_t now_ns) {
                  &r.W_effects, &K_fx);
   r.contact_weight = ContactWeight(r.ir.max_depth, config_.free_space_margin_m);
   StepProxy(coupling_, r.X_WH, v_WH, w_WH, r.W_effects, K_fx, h, &proxy_, r.contact_weight);
+  // An IR no valid answer produces (numbers that overflow on their way,
+  // from a broken or foreign server) must not leave the proxy non-finite
+  // for good: put it back on the handle and drop the IR.
+  if (!proxy_.X_WP.t.allFinite() || !proxy_.X_WP.R.allFinite() || !proxy_.v_W.allFinite() ||
+      !proxy_.w_W.allFinite()) {
+    proxy_.X_WP = r.X_WH;
+    proxy_.v_W = v_WH;
+    proxy_.w_W = w_WH;
+    eval_.Reset();
+    ++stats_.nonfinite_resets;
+  }
   // Link loss (stale IR): fade the output to zero in real time (a late tick
   // only fades faster); once it is zero, hold the proxy on the handle so the
   // coupling stretches nothing and nothing stale is felt when IRs return.

@@ -17,56 +17,20 @@
 #include "server/convert.h"
 #include "server/scene_file.h"
 #include "server/services.h"
+#include "server/session_worker.h"
 
 namespace hapticpd::server::internal {
 namespace {
 
-constexpr std::uint32_t kProtocolVersion = 1;
-
-bool Finite(const v1::Vec3& v) {
-  return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z());
-}
-bool Finite(const v1::Pose& p) {
-  const v1::Quaternion& q = p.orientation();
-  return Finite(p.position()) && std::isfinite(q.w()) && std::isfinite(q.x()) &&
-         std::isfinite(q.y()) && std::isfinite(q.z());
-}
-double Norm(const v1::Vec3& v) { return std::sqrt(v.x() * v.x() + v.y() * v.y() + v.z() * v.z()); }
-
-/// Why an answer must not reach a motor, or null when it may.
-const char* UpdateProblem(const v1::ContactUpdate& u, double max_force, double max_torque) {
-  if (!Finite(u.force()) || !Finite(u.torque())) return "non-finite force or torque";
-  if (Norm(u.force()) > max_force) return "force over the server's --max-update-force";
-  if (Norm(u.torque()) > max_torque) return "torque over the server's --max-update-torque";
-  for (const v1::ContactRow& r : u.rows()) {
-    if (!Finite(r.point()) || !Finite(r.normal()) || !Finite(r.moment()) ||
-        !std::isfinite(r.depth()) || !std::isfinite(r.stiffness()) ||
-        !std::isfinite(r.static_friction()) || !std::isfinite(r.dynamic_friction()) ||
-        !std::isfinite(r.damping())) {
-      return "a non-finite contact row";
-    }
-  }
-  if (!Finite(u.pose_ref()) || !Finite(u.target_pose()) || !Finite(u.pd_translation()) ||
-      !Finite(u.rotation_axis())) {
-    return "a non-finite pose or PD vector";
-  }
-  for (double x : {u.depth(), u.validity_radius(), u.validity_angle(), u.target_stiffness(),
-                   u.target_rotational_stiffness(), u.sigma(), u.rotation_angle()}) {
-    if (!std::isfinite(x)) return "a non-finite depth, validity or stiffness";
-  }
-  return nullptr;
-}
-
-/// Two contact springs in series (probe and body material): k_p k_b / (k_p + k_b).
-double SeriesStiffness(double kp, double kb) { return kp + kb > 0 ? kp * kb / (kp + kb) : 0.0; }
-
 class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1::CoupleResponse>,
                             public StoppableCall {
  public:
-  CoupleReactor(Core* core, grpc::CallbackServerContext* ctx) : core_(core), ctx_(ctx) {
+  CoupleReactor(Core* core, grpc::CallbackServerContext* ctx)
+      : core_(core),
+        ctx_(ctx),
+        session_id_(fmt::format("s{}", NextSessionNumber())),
+        worker_pd_(core->limits, session_id_) {
     core_->Register(this);
-    session_id_ = std::to_string(NextSessionNumber());
-    session_id_.insert(0, 1, 's');
     if (core_->shutting_down.load()) {
       Stop(core_->Unavailable());
     } else if (auto s = core_->tokens.CheckAnyToken(*ctx_); !s.ok()) {
@@ -253,13 +217,6 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
 
   // ---- worker ---------------------------------------------------------------
 
-  struct MailPose {
-    std::uint64_t sequence = 0;
-    Pose X_WA;
-    std::int64_t client_time_ns = 0;
-    std::int64_t rx_ns = 0;
-  };
-
   void Run() {
     grpc::Status end = Serve();
     if (!end.ok() && end.error_code() != grpc::StatusCode::CANCELLED) {
@@ -337,63 +294,8 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       }
       return s;
     }
-    // The scene's declared effects and PD mode (a hello without a mode gets
-    // the scene's); without torque, answers carry no torque terms.
-    const v1::SceneConfig config = scene->config();
-    const v1::PdMode hello_mode = h.mode() == v1::PD_MODE_UNSPECIFIED ? config.pd_mode() : h.mode();
-    if (auto s = CheckModeSupported(hello_mode); !s.ok()) return s;
-    mode_ = hello_mode;
-    torque_ = SceneHasEffect(config, v1::EFFECT_TORQUE);
-    // The scene's probe inertia override (mass and inertia both given; the
-    // parser and CheckSceneConfig reject inertia without mass) replaces the
-    // mesh's uniform-solid rotational weights of the PDg object norm.
-    if (config.probe_mass() > 0 && config.probe_inertia() > 0) {
-      request_.principal_inertia_over_mass =
-          Vec3::Constant(config.probe_inertia() / config.probe_mass());
-    }
-    // Only effects at the contact regions need PD; weight alone does not.
-    needs_pd_ =
-        SceneHasEffect(config, v1::EFFECT_CONTACT) || SceneHasEffect(config, v1::EFFECT_FRICTION) ||
-        SceneHasEffect(config, v1::EFFECT_DAMPING) || SceneHasEffect(config, v1::EFFECT_TEXTURE);
-    if (h.has_material()) {
-      if (auto s = FromProto(h.material(), "hello.material", &probe_material_); !s.ok()) return s;
-      has_probe_material_ = true;
-    }
-    if (auto s = wire::CheckRange(h.max_rate_hz(), wire::kMaxRateHz, "hello.max_rate_hz");
-        !s.ok()) {
-      return s;
-    }
-    if (h.max_rate_hz() > 0) {
-      min_period_ = std::chrono::nanoseconds(static_cast<std::int64_t>(1e9 / h.max_rate_hz()));
-    }
-    const std::size_t max_tris = core_->limits.max_mesh_triangles;
-    std::optional<pd::Mesh> mesh;
-    switch (h.probe_case()) {
-      case v1::Hello::kProbeBodyId: {
-        if (auto s = ValidateId(h.probe_body_id(), "hello.probe_body_id"); !s.ok()) return s;
-        const SnapshotPtr snap = scene->snapshot();
-        const BodyState* b = snap->Find(h.probe_body_id());
-        if (b == nullptr) {
-          return grpc::Status(grpc::StatusCode::NOT_FOUND, "hello.probe_body_id: scene '" +
-                                                               scene->id() + "' has no body '" +
-                                                               h.probe_body_id() + "'");
-        }
-        probe_ = b->model;
-        probe_uid_ = b->uid;
-        break;
-      }
-      case v1::Hello::kProbeMesh:
-        if (auto s = MeshFromInline(h.probe_mesh(), "hello.probe_mesh", max_tris, &mesh); !s.ok())
-          return s;
-        break;
-      case v1::Hello::kProbeShape:
-        if (auto s = MeshFromShape(h.probe_shape(), "hello.probe_shape", max_tris, &mesh); !s.ok())
-          return s;
-        break;
-      default:
-        return InvalidArgument("hello.probe", "give probe_body_id, probe_mesh or probe_shape");
-    }
-    if (mesh) probe_ = pd::MakeModel(std::move(*mesh));  // on this worker, off the gRPC threads
+    v1::CoupleResponse msg;
+    if (auto s = worker_pd_.Start(h, scene, msg.mutable_welcome()); !s.ok()) return s;
     // The session is live from here.
     scene_ = scene;
     scene_ptr_.store(scene.get());
@@ -404,206 +306,34 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     if (scene_->deleted()) {
       return grpc::Status(grpc::StatusCode::NOT_FOUND, "scene '" + scene_->id() + "' was deleted");
     }
-    const pd::Mesh& pm = probe_->mesh();
-    probe_radius_ = pm.bounding_radius();
-    v1::CoupleResponse msg;
-    auto* w = msg.mutable_welcome();
-    w->set_protocol_version(kProtocolVersion);
-    w->set_session_id(session_id_);
-    w->set_mode(static_cast<v1::PdMode>(mode_));
-    ToProto(probe_->mass().X_MB, w->mutable_probe_body_frame());
-    auto* info = w->mutable_probe_mesh_info();
-    info->set_triangles(static_cast<std::uint32_t>(pm.num_triangles()));
-    info->set_vertices(static_cast<std::uint32_t>(pm.num_vertices()));
-    info->set_watertight(pm.watertight());
-    info->set_convex(probe_->convex());
-    ToProto(pm.bounds().lo, info->mutable_aabb_min());
-    ToProto(pm.bounds().hi, info->mutable_aabb_max());
-    ToProto(probe_->mass().p_MC, info->mutable_center_of_mass());
-    info->set_bounding_radius(pm.bounding_radius());
-    w->set_probe_mass_per_density(probe_->mass().volume);
-    w->set_scene_revision(scene_->snapshot()->revision);
-    *w->mutable_scene_config() = config;
     Send(&msg);
     Log()->info("session {} on scene '{}': {} probe of {} triangles, mode {}{}", session_id_,
                 scene_->id(),
                 h.client_name().empty() ? "a" : wire::Printable(h.client_name()) + "'s",
-                pm.num_triangles(), v1::PdMode_Name(h.mode()),
+                worker_pd_.probe()->mesh().num_triangles(), v1::PdMode_Name(h.mode()),
                 h.probe_case() == v1::Hello::kProbeBodyId
                     ? " (probe is body " + h.probe_body_id() + ")"
                     : std::string());
     return grpc::Status::OK;
   }
 
-  /// Rebuilds the session's view of the scene when the snapshot changed:
-  /// the bodies (minus the probe's own), effective materials, and the
-  /// per-body coherence state carried over by body uid.
-  void SyncBodies(const SnapshotPtr& snap) {
-    if (snap == synced_) return;
-    bodies_.clear();
-    std::vector<std::uint64_t> uids;
-    std::vector<pd::PdQueryData> data;
-    std::vector<pd::PdgQueryData> data_pdg;
-    for (const BodyState& b : snap->bodies) {
-      if (b.uid == probe_uid_) continue;
-      pd::SceneBody sb{b.model, b.X_WB, b.material};
-      if (has_probe_material_) {
-        sb.material.stiffness = SeriesStiffness(probe_material_.stiffness, b.material.stiffness);
-        sb.material.rotational_stiffness =
-            SeriesStiffness(probe_material_.rotational_stiffness, b.material.rotational_stiffness);
-      }
-      bodies_.push_back(std::move(sb));
-      uids.push_back(b.uid);
-      body_ids_.resize(bodies_.size());
-      body_ids_.back() = b.id;
-      // Carry the body's coherence state over (by uid), for the method in use.
-      const auto it = std::find(uids_.begin(), uids_.end(), b.uid);
-      const auto k = static_cast<std::size_t>(it - uids_.begin());
-      if (mode_ == v1::PD_MODE_PDG) {
-        data_pdg.push_back(it != uids_.end() && k < pd_data_.per_body_pdg.size()
-                               ? std::move(pd_data_.per_body_pdg[k])
-                               : pd::PdgQueryData());
-      } else {
-        data.push_back(it != uids_.end() && k < pd_data_.per_body.size()
-                           ? std::move(pd_data_.per_body[k])
-                           : pd::PdQueryData());
-      }
-    }
-    body_ids_.resize(bodies_.size());
-    uids_ = std::move(uids);
-    pd_data_.per_body = std::move(data);
-    pd_data_.per_body_pdg = std::move(data_pdg);
-    synced_ = snap;
-  }
-
+  /// One answer, with the server's counters and the observers' probe.
   void Compute(const MailPose& p, std::uint32_t superseded, v1::CoupleResponse* msg) {
-    v1::ContactUpdate* u = msg->mutable_update();
-    u->Clear();
-    u->set_sequence(p.sequence);
-    ToProto(p.X_WA, u->mutable_pose_ref());
-    u->set_client_time_ns(p.client_time_ns);
-    u->set_server_receive_time_ns(p.rx_ns);
-    u->set_poses_superseded(superseded);
-    const SnapshotPtr snap = scene_->snapshot();
-    u->set_scene_revision(snap->revision);
-    const double radius = 0.1 * probe_radius_;
-    last_pose_ = p.X_WA;
-    if (mode_ == v1::PD_MODE_NONE || !needs_pd_) {
-      u->set_status(v1::CONTACT_STATUS_NONE);
-      ToProto(p.X_WA, u->mutable_target_pose());
-      u->set_validity_radius(radius);
-      u->set_validity_angle(radius / std::max(probe_->radius_about_com(), 1e-12));
-      PublishProbe(p, Vec3::Zero(), 0);
-      return;
+    const AnswerInfo info = worker_pd_.Answer(p, superseded, msg->mutable_update());
+    if (info.pd_ran) {
+      core_->stats.compute_us.Add(info.time_us);
+      core_->stats.pd_calls.fetch_add(1, std::memory_order_relaxed);
+      if (!info.torque) core_->stats.torque_skipped.fetch_add(1, std::memory_order_relaxed);
     }
-    SyncBodies(snap);
-    pd::ComputeScenePd(
-        mode_ == v1::PD_MODE_PDG ? pd::PdMode::kGeneralized : pd::PdMode::kTranslational, *probe_,
-        p.X_WA, bodies_, request_, &pd_data_, &result_,
-        torque_ ? pd::WrenchTerms::kForceAndTorque : pd::WrenchTerms::kForceOnly);
-    core_->stats.compute_us.Add(result_.time_us);
-    core_->stats.pd_calls.fetch_add(1, std::memory_order_relaxed);
-    if (!torque_) core_->stats.torque_skipped.fetch_add(1, std::memory_order_relaxed);
-    const Vec3 c_W = p.X_WA * probe_->mass().p_MC;
-    bool failed = false, capped = false;
-    for (std::size_t i = 0; i < bodies_.size(); ++i) {
-      const pd::PenetrationResult& r = result_.bodies[i];
-      if (r.status == pd::PdStatus::kFailed) failed = true;
-      if (r.status == pd::PdStatus::kPenetratingCapReached) capped = true;
-      if (r.status != pd::PdStatus::kPenetratingSolved &&
-          r.status != pd::PdStatus::kPenetratingCapReached) {
-        continue;
+    if (info.withheld != nullptr) {
+      core_->stats.updates_withheld.fetch_add(1, std::memory_order_relaxed);
+      if (withheld_++ == 0) {
+        Log()->warn("session {}: an answer was withheld ({}); it and any later ones go out as "
+                    "zero force, no rows (CONTACT_STATUS_WITHHELD)",
+                    session_id_, info.withheld);
       }
-      const auto body_index = static_cast<std::uint32_t>(u->body_ids_size());
-      u->add_body_ids(body_ids_[i]);
-      const pd::Material& mat = bodies_[i].material;
-      const double k = mat.stiffness;
-      auto add_row = [&](const Vec3& p_W, const Vec3& n_W, double depth) {
-        auto* row = u->add_rows();
-        ToProto(p_W, row->mutable_point());
-        ToProto(n_W, row->mutable_normal());
-        row->set_depth(depth);
-        // Without torque the rows are pure forces (zero moment arm).
-        if (torque_) ToProto((p_W - c_W).cross(n_W), row->mutable_moment());
-        row->set_stiffness(k);
-        row->set_body_index(body_index);
-        row->set_static_friction(mat.static_friction);
-        row->set_dynamic_friction(mat.dynamic_friction);
-        row->set_damping(mat.damping);
-      };
-      // No regions (PDg, or PDt without them): one row at the centre of mass
-      // along the answer's translation (for PDg, depth = sqrt(sigma) is not
-      // the translation's length: the row uses the translation itself).
-      if (const double len = r.translation_W.norm(); r.regions.empty() && len > 0) {
-        add_row(c_W, r.translation_W / len, len);
-      }
-      for (const pd::ContactRegion& reg : r.regions) add_row(reg.p_W, reg.n_W, reg.depth);
     }
-    ToProto(result_.wrench.force, u->mutable_force());
-    if (torque_) ToProto(result_.wrench.torque, u->mutable_torque());
-    if (result_.deepest >= 0) {
-      const pd::PenetrationResult& d = result_.bodies[result_.deepest];
-      u->set_depth(d.depth);
-      ToProto(d.translation_W, u->mutable_pd_translation());
-      ToProto(d.X_WA_result, u->mutable_target_pose());
-      u->set_target_stiffness(bodies_[result_.deepest].material.stiffness);
-      if (torque_) {
-        u->set_target_rotational_stiffness(bodies_[result_.deepest].material.rotational_stiffness);
-      }
-      if (d.mode == pd::PdMode::kGeneralized) {
-        u->set_sigma(d.sigma);
-        u->set_rotation_angle(d.rotation_angle);
-        ToProto(d.rotation_axis_W, u->mutable_rotation_axis());
-      }
-    } else {
-      ToProto(p.X_WA, u->mutable_target_pose());
-    }
-    u->set_status(failed              ? v1::CONTACT_STATUS_FAILED
-                  : capped            ? v1::CONTACT_STATUS_CAP_REACHED
-                  : result_.colliding ? v1::CONTACT_STATUS_PENETRATING
-                                      : v1::CONTACT_STATUS_SEPARATED);
-    // The rows are a linearisation around pose_ref; trust them over a tenth
-    // of the probe's size beyond the current depth.
-    const double linear = radius + u->depth();
-    u->set_validity_radius(linear);
-    u->set_validity_angle(linear / std::max(probe_->radius_about_com(), 1e-12));
-    u->set_compute_time_us(result_.time_us);
-    if (!Withhold(u)) PublishProbe(p, result_.wrench.force, u->depth());
-  }
-
-  /// The last line of defence before a motor: an answer holding a
-  /// non-finite number, or a force or torque over the configured limit, is
-  /// replaced by zero force and no rows (CONTACT_STATUS_WITHHELD), keeping
-  /// what identifies it (sequence, poses, times). True when replaced.
-  bool Withhold(v1::ContactUpdate* u) {
-    const char* why = UpdateProblem(*u, core_->limits.max_update_force,
-                                    core_->limits.max_update_torque);
-    if (why == nullptr) return false;
-    core_->stats.updates_withheld.fetch_add(1, std::memory_order_relaxed);
-    if (withheld_++ == 0) {
-      Log()->warn("session {}: an answer was withheld ({}); it and any later ones go out as "
-                  "zero force, no rows (CONTACT_STATUS_WITHHELD)",
-                  session_id_, why);
-    }
-    u->clear_rows();
-    u->clear_body_ids();
-    u->clear_force();
-    u->clear_torque();
-    *u->mutable_target_pose() = u->pose_ref();
-    u->set_depth(0);
-    u->clear_pd_translation();
-    u->set_target_stiffness(0);
-    u->set_target_rotational_stiffness(0);
-    u->set_sigma(0);
-    u->set_rotation_angle(0);
-    u->clear_rotation_axis();
-    const double radius = 0.1 * probe_radius_;
-    u->set_validity_radius(radius);
-    u->set_validity_angle(radius / std::max(probe_->radius_about_com(), 1e-12));
-    if (!std::isfinite(u->compute_time_us())) u->set_compute_time_us(0);
-    u->set_status(v1::CONTACT_STATUS_WITHHELD);
-    PublishProbe(MailPose{u->sequence(), last_pose_, 0, 0}, Vec3::Zero(), 0);
-    return true;
+    PublishProbe(p, info.force_W, info.depth);
   }
 
   /// Shows the answered probe pose to observers (a short lock, after PD).
@@ -633,7 +363,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
         grpc::Status end;
         if (!WaitClient(lock, [&] { return has_pose_ || client_done_; }, &end)) return end;
         if (!has_pose_) return grpc::Status::OK;  // client half-closed, everything answered
-        if (min_period_.count() > 0) {
+        if (worker_pd_.min_period().count() > 0) {
           mb_cv_.wait_until(lock, next_allowed, [&] { return stop_; });
           if (stop_) return stop_status_;
         }
@@ -648,7 +378,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
         return grpc::Status(grpc::StatusCode::NOT_FOUND,
                             "scene '" + scene_->id() + "' was deleted");
       }
-      if (min_period_.count() > 0) next_allowed = std::chrono::steady_clock::now() + min_period_;
+      if (worker_pd_.min_period().count() > 0) next_allowed = std::chrono::steady_clock::now() + worker_pd_.min_period();
       Compute(p, superseded, &msg);
       Send(&msg);
     }
@@ -691,26 +421,10 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   v1::CoupleResponse pending_;
 
   // Worker-only state.
-  int mode_ = v1::PD_MODE_UNSPECIFIED;
-  bool torque_ = true;    // the scene declares torque (or declares nothing)
-  bool needs_pd_ = true;  // the scene declares an effect at the contact regions
-  pd::ModelPtr probe_;
-  std::uint64_t probe_uid_ = 0;
-  double probe_radius_ = 0;
-  pd::Material probe_material_;
-  bool has_probe_material_ = false;
-  std::chrono::nanoseconds min_period_{0};
+  SessionWorker worker_pd_;
   ScenePtr scene_;
   std::atomic<const Scene*> scene_ptr_{nullptr};
   std::shared_ptr<ProbeSlot> probe_slot_;
-  SnapshotPtr synced_;
-  std::vector<pd::SceneBody> bodies_;
-  std::vector<std::string> body_ids_;
-  std::vector<std::uint64_t> uids_;
-  pd::ScenePdData pd_data_;
-  pd::ScenePdResult result_;
-  pd::PenetrationRequest request_;
-  Pose last_pose_;
   std::uint64_t withheld_ = 0;
 };
 

@@ -1009,16 +1009,16 @@ TEST(CoupleFuzz, ClientBoundaryKeepsBadNumbersFromTheMotor) {
   EXPECT_GT(refused, 0);
 }
 
-// Known gap, kept disabled until the client or the servo loop guards
-// against it (run with --gtest_also_run_disabled_tests): IrFromContactUpdate
-// checks only that numbers are finite, and an update with a pose_ref
-// coordinate or a row point beyond about 1e154 m (whose square overflows) or
-// a row depth of 1e200 m makes the servo loop command a NaN force at the
-// first tick that renders it; the device-limit clamp (ClampNorm) lets NaN
-// through. The server's ranges keep its own answers far from this.
-TEST(CoupleFuzz, DISABLED_ClientBoundaryKeepsHugeNumbersFromTheMotor) {
+// Finite numbers whose squares overflow (a pose_ref coordinate or a row
+// point beyond 1e154 m, a row depth of 1e200 m): IrFromContactUpdate refuses
+// coordinates and depths beyond 1e6 m, and the servo loop puts a
+// non-finite proxy back on the handle and never commands a non-finite force
+// (ClampNorm gives zero for one).
+TEST(CoupleFuzz, ClientBoundaryKeepsHugeNumbersFromTheMotor) {
   int cases = 0;
-  BadNumbersToServo({1e155, -1e200, 1e308}, &cases);
+  const int refused = BadNumbersToServo({1e155, -1e200, 1e308}, &cases);
+  EXPECT_GT(cases, 100);
+  EXPECT_GT(refused, 0);
 }
 
 }  // namespace couple_fuzz
