@@ -45,6 +45,7 @@ struct DemoOptions {
   std::string scene_file;        // empty: the built-in scene
   std::string script = "slide";  // with --scene
   double travel = 0.01;          // with --scene: m the hand goes down from the start
+  client::LinkOptions link;      // --delay, --jitter, --loss
 };
 
 Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
@@ -92,6 +93,7 @@ struct RunSpec {
   device::ScriptParams script;  // duration_s is set per run
   /// The probe's lowest point starts 5 mm above this point.
   Vec3 above = Vec3::Zero();
+  std::optional<client::LinkOptions> link;  // an emulated wide-area link
 };
 
 const char* ModeLabel(const std::string& mode) {
@@ -114,6 +116,7 @@ Run RunMode(const RunSpec& spec, double duration) {
     so.hello.set_probe_shape(spec.probe_shape);
   }
   so.hello.set_client_name("hapticpd demo (" + mode + ")");
+  so.link = spec.link;
   client::Session session(so);
   try {
     session.Connect();
@@ -240,7 +243,12 @@ void RunDemo(const DemoOptions& o) {
   if (!(o.travel >= 0) || o.travel > 0.2) {
     throw CommandError("demo: --travel: expected 0 to 0.2 m");
   }
+  if (const std::string problem = client::LinkOptionsProblem(o.link); !problem.empty()) {
+    throw CommandError("demo: " + problem);
+  }
   RunSpec base;
+  // No delay, jitter or loss: no emulator at all (the session's direct path).
+  if (o.link.delay_ms > 0 || o.link.jitter_ms > 0 || o.link.loss > 0) base.link = o.link;
   std::optional<server::SceneFile> file;
   if (!o.scene_file.empty()) {
     try {
@@ -341,6 +349,9 @@ void RunDemo(const DemoOptions& o) {
   });
 
   std::printf("hapticpd demo: server on 127.0.0.1:%d, %s\n", port, scene_line);
+  if (base.link) {
+    std::printf("  emulated link: %s\n", client::LinkDescription(*base.link).c_str());
+  }
   std::vector<Run> runs;
   for (const std::string& mode : modes) {
     std::printf("  running %s for %.1f s ...\n", mode.c_str(), o.duration);
@@ -405,6 +416,15 @@ void RegisterDemo(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--duration", o->duration, "Seconds per mode")->capture_default_str();
   cmd->add_option("--out", o->out, "Folder for trace.csv and force.svg")->capture_default_str();
+  cmd->add_option("--delay", o->link.delay_ms,
+                  "Emulate a wide-area link: one-way delay (ms, each direction, 0 to 10000)")
+      ->capture_default_str();
+  cmd->add_option("--jitter", o->link.jitter_ms,
+                  "Emulated link: uniform +-jitter on the delay (ms, at most --delay)")
+      ->capture_default_str();
+  cmd->add_option("--loss", o->link.loss,
+                  "Emulated link: fraction of pose and update messages lost, in [0, 1)")
+      ->capture_default_str();
   cmd->callback([o] { RunDemo(*o); });
 }
 

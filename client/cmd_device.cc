@@ -44,6 +44,7 @@ struct DeviceOptions {
   double max_rate = 0;
   std::string record;
   bool json = false;
+  client::LinkOptions link;  // --delay, --jitter, --loss
 };
 
 std::shared_ptr<grpc::ChannelCredentials> Credentials(const ConnectionOptions& o) {
@@ -135,6 +136,11 @@ void RunDevice(const DeviceOptions& o) {
     throw CommandError("device: --max-rate: expected >= 0");
   }
   h.set_max_rate_hz(o.max_rate);
+  if (const std::string problem = client::LinkOptionsProblem(o.link); !problem.empty()) {
+    throw CommandError("device: " + problem);
+  }
+  // No delay, jitter or loss: no emulator at all (the session's direct path).
+  if (o.link.delay_ms > 0 || o.link.jitter_ms > 0 || o.link.loss > 0) so.link = o.link;
   device::HandScript script = device::HandScript::kHold;
   if (!o.simulated.empty()) {
     try {
@@ -236,6 +242,15 @@ void RunDevice(const DeviceOptions& o) {
   j["passivity_min_j"] = s.passivity_min_j;
   j["connects"] = ss.connects;
   j["disconnects"] = ss.disconnects;
+  if (ss.link.active) {
+    j["link"] = {{"delay_ms", o.link.delay_ms},
+                 {"jitter_ms", o.link.jitter_ms},
+                 {"loss", o.link.loss},
+                 {"poses_sent", ss.link.poses.sent},
+                 {"poses_lost", ss.link.poses.lost + ss.link.poses.overflow},
+                 {"updates_sent", ss.link.updates.sent},
+                 {"updates_lost", ss.link.updates.lost + ss.link.updates.overflow}};
+  }
   if (o.json) {
     std::cout << j.dump() << std::endl;
     return;
@@ -255,6 +270,14 @@ void RunDevice(const DeviceOptions& o) {
       static_cast<unsigned long long>(ss.contact_updates), ss.rtt_p50_us, ss.rtt_p99_us,
       ss.server_compute_p50_us, s.max_force, s.max_dforce, s.max_torque, 1e3 * ss.max_depth,
       s.energy_into_hand_j, s.passivity_min_j);
+  if (ss.link.active) {
+    std::printf("  link   emulated %s: %llu of %llu poses and %llu of %llu updates lost\n",
+                client::LinkDescription(o.link).c_str(),
+                static_cast<unsigned long long>(ss.link.poses.lost + ss.link.poses.overflow),
+                static_cast<unsigned long long>(ss.link.poses.sent),
+                static_cast<unsigned long long>(ss.link.updates.lost + ss.link.updates.overflow),
+                static_cast<unsigned long long>(ss.link.updates.sent));
+  }
   if (ss.disconnects > 0) {
     std::printf("  %llu disconnects, last: %s\n", static_cast<unsigned long long>(ss.disconnects),
                 ss.last_error.c_str());
@@ -284,6 +307,15 @@ void RegisterDevice(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--record", o->record, "Write the device trajectory to this CSV");
   cmd->add_flag("--json", o->json, "Print the statistics as one JSON object");
+  cmd->add_option("--delay", o->link.delay_ms,
+                  "Emulate a wide-area link: one-way delay (ms, each direction, 0 to 10000)")
+      ->capture_default_str();
+  cmd->add_option("--jitter", o->link.jitter_ms,
+                  "Emulated link: uniform +-jitter on the delay (ms, at most --delay)")
+      ->capture_default_str();
+  cmd->add_option("--loss", o->link.loss,
+                  "Emulated link: fraction of pose and update messages lost, in [0, 1)")
+      ->capture_default_str();
   cmd->callback([o] { RunDevice(*o); });
 }
 

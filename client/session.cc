@@ -172,6 +172,12 @@ Session::Session(SessionOptions options, const device::Clock* clock)
   if (options_.hello.protocol_version() == 0) options_.hello.set_protocol_version(1);
   if (options_.hello.client_name().empty()) options_.hello.set_client_name("hapticpd device");
   if (!options_.credentials) options_.credentials = grpc::InsecureChannelCredentials();
+  if (options_.link) {
+    if (const std::string problem = LinkOptionsProblem(*options_.link); !problem.empty()) {
+      throw SessionError("session: " + problem);
+    }
+    link_ = std::make_unique<Link>(*options_.link);
+  }
 }
 
 Session::~Session() { Stop(); }
@@ -301,58 +307,106 @@ void Session::StallUpdatesFor(double seconds) {
 
 void Session::ReadLoop(Stream* s) {
   v1::CoupleResponse resp;
-  device::IrMailbox& out = loop_->ir_mailbox();
   while (s->rw->Read(&resp)) {
     if (!resp.has_update()) continue;
-    const v1::ContactUpdate& u = resp.update();
     const std::int64_t now = clock_->NowNs();
     if (now < stall_until_ns_.load(std::memory_order_relaxed)) {
       std::lock_guard lock(stats_mu_);
       ++counters_.withheld_updates;
       continue;
     }
-    const bool good = IrFromContactUpdate(u, X_AP_, now, &out.back());
-    if (good) out.Publish();
-    // Round trip: from writing the pose to reading its answer.
-    const std::size_t slot = u.sequence() % kRing;
-    double rtt_us = -1;
-    if (sent_seq_[slot].load(std::memory_order_acquire) == u.sequence()) {
-      rtt_us = 1e-3 * static_cast<double>(now - sent_ns_[slot].load(std::memory_order_relaxed));
+    if (link_) {
+      link_->updates.Send(resp.update(), now);
+    } else {
+      Accept(resp.update(), now);
     }
-    std::lock_guard lock(stats_mu_);
-    ++counters_.updates;
-    if (!good) ++counters_.bad_updates;
-    if (u.rows_size() > 0) ++counters_.contact_updates;
-    counters_.max_depth = std::max(counters_.max_depth, u.depth());
-    if (rtt_us >= 0) rtt_us_.Add(rtt_us);
-    compute_us_.Add(u.compute_time_us());
   }
   s->reader_done = true;
+}
+
+void Session::Accept(const v1::ContactUpdate& u, std::int64_t now) {
+  device::IrMailbox& out = loop_->ir_mailbox();
+  const bool good = IrFromContactUpdate(u, X_AP_, now, &out.back());
+  if (good) out.Publish();
+  // Round trip: from writing the pose (or, with an emulated link, offering
+  // it to the link) to reading its answer (or taking it out of the link).
+  const std::size_t slot = u.sequence() % kRing;
+  double rtt_us = -1;
+  if (sent_seq_[slot].load(std::memory_order_acquire) == u.sequence()) {
+    rtt_us = 1e-3 * static_cast<double>(now - sent_ns_[slot].load(std::memory_order_relaxed));
+  }
+  std::lock_guard lock(stats_mu_);
+  ++counters_.updates;
+  if (!good) ++counters_.bad_updates;
+  if (u.rows_size() > 0) ++counters_.contact_updates;
+  counters_.max_depth = std::max(counters_.max_depth, u.depth());
+  if (rtt_us >= 0) rtt_us_.Add(rtt_us);
+  compute_us_.Add(u.compute_time_us());
+}
+
+void Session::DeliverLoop(const std::atomic<bool>& done) {
+  v1::ContactUpdate u;
+  while (!done.load()) {
+    const std::int64_t now = clock_->NowNs();
+    if (link_->updates.Receive(now, &u)) {
+      Accept(u, now);
+      continue;
+    }
+    // Sleep until the next update is due (at most 2 ms, so `done` is seen).
+    const std::int64_t wait = std::min<std::int64_t>(link_->updates.NextDueNs() - now, 2'000'000);
+    link_->updates.WaitFor(std::chrono::nanoseconds(wait));
+  }
+}
+
+bool Session::WritePose(Stream& s, const device::ProxySample& x, v1::CoupleRequest* req) {
+  auto* p = req->mutable_pose();
+  p->set_sequence(x.sequence);
+  SetPose(x.X_WA, p->mutable_pose());
+  p->set_client_time_ns(x.time_ns);
+  if (!s.rw->Write(*req)) return false;
+  std::lock_guard lock(stats_mu_);
+  ++counters_.poses_sent;
+  return true;
 }
 
 void Session::Serve(Stream& s, std::stop_token st) {
   connected_ = true;
   std::thread reader([this, &s] { ReadLoop(&s); });
+  std::atomic<bool> deliver_done{false};
+  std::thread deliverer;
+  if (link_) deliverer = std::thread([this, &deliver_done] { DeliverLoop(deliver_done); });
   device::ProxyMailbox& in = loop_->proxy_mailbox();
   v1::CoupleRequest req;
   const auto poll =
       std::chrono::nanoseconds(static_cast<std::int64_t>(options_.poll_interval_s * 1e9));
+  device::ProxySample due;
   while (!st.stop_requested() && !s.reader_done.load()) {
-    if (!in.Fetch()) {
-      std::this_thread::sleep_for(poll);
-      continue;
+    bool idle = true;
+    if (in.Fetch()) {
+      idle = false;
+      const device::ProxySample& x = in.front();
+      const std::int64_t now = clock_->NowNs();
+      const std::size_t slot = x.sequence % kRing;
+      sent_ns_[slot].store(now, std::memory_order_relaxed);
+      sent_seq_[slot].store(x.sequence, std::memory_order_release);
+      if (link_) {
+        link_->poses.Send(x, now);
+      } else if (!WritePose(s, x, &req)) {
+        break;
+      }
     }
-    const device::ProxySample& x = in.front();
-    auto* p = req.mutable_pose();
-    p->set_sequence(x.sequence);
-    SetPose(x.X_WA, p->mutable_pose());
-    p->set_client_time_ns(x.time_ns);
-    const std::size_t slot = x.sequence % kRing;
-    sent_ns_[slot].store(clock_->NowNs(), std::memory_order_relaxed);
-    sent_seq_[slot].store(x.sequence, std::memory_order_release);
-    if (!s.rw->Write(req)) break;
-    std::lock_guard lock(stats_mu_);
-    ++counters_.poses_sent;
+    if (link_) {
+      bool broken = false;
+      while (link_->poses.Receive(clock_->NowNs(), &due)) {
+        idle = false;
+        if (!WritePose(s, due, &req)) {
+          broken = true;
+          break;
+        }
+      }
+      if (broken) break;
+    }
+    if (idle) std::this_thread::sleep_for(poll);
   }
   connected_ = false;
   if (st.stop_requested()) {
@@ -365,6 +419,14 @@ void Session::Serve(Stream& s, std::stop_token st) {
   }
   s.ctx.TryCancel();
   reader.join();
+  if (deliverer.joinable()) {
+    deliver_done = true;
+    link_->updates.Wake();
+    deliverer.join();
+    // What was still in flight belonged to this stream.
+    link_->poses.Clear();
+    link_->updates.Clear();
+  }
   const grpc::Status status = s.rw->Finish();
   {
     std::lock_guard lock(ctx_mu_);
@@ -435,6 +497,11 @@ SessionStats Session::stats() const {
   s.rtt_mean_us = rtt_us_.mean();
   s.server_compute_p50_us = compute_us_.Quantile(0.5);
   s.server_compute_p99_us = compute_us_.Quantile(0.99);
+  if (link_) {
+    s.link.active = true;
+    s.link.poses = link_->poses.counters();
+    s.link.updates = link_->updates.counters();
+  }
   return s;
 }
 

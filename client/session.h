@@ -18,7 +18,9 @@
 // arrives, so the servo loop fades the contact force to zero by itself (the
 // IR goes stale), and on reconnect it asks the loop to ResetContact (the
 // start-up ramp re-arms). Round trips (pose written -> its ContactUpdate
-// read) and update counts are kept for statistics.
+// read) and update counts are kept for statistics. SessionOptions::link
+// puts an emulated delay, jitter and loss between the loop and the stream
+// (client/link_emulator.h), on the session's threads.
 #pragma once
 
 #include <grpcpp/grpcpp.h>
@@ -33,6 +35,7 @@
 #include <string>
 #include <thread>
 
+#include "client/link_emulator.h"
 #include "device/haptic_device.h"
 #include "device/ir.h"
 #include "device/servo_loop.h"
@@ -78,6 +81,21 @@ struct SessionOptions {
   double backoff_max_s = 1.0;
   /// How often the network thread looks for a new proxy sample when idle.
   double poll_interval_s = 100e-6;
+  /// An emulated wide-area link (client/link_emulator.h) between the servo
+  /// loop and the stream, both directions: poses enter it when the network
+  /// thread takes them from the loop, updates when the reader reads them,
+  /// and a delivery thread publishes due updates to the IR mailbox. Unset
+  /// (the default): no emulation, today's path exactly. Must be valid
+  /// (LinkOptionsProblem); the Session constructor throws SessionError
+  /// otherwise.
+  std::optional<LinkOptions> link;
+};
+
+/// What the emulated link did (SessionOptions::link), per direction.
+struct LinkStats {
+  bool active = false;
+  LinkCounters poses;    ///< client -> server
+  LinkCounters updates;  ///< server -> client
 };
 
 /// Statistics any thread may read (a consistent copy under a mutex; the
@@ -98,6 +116,7 @@ struct SessionStats {
   double max_depth = 0;  ///< m, deepest PD reported
   std::string last_error;
   std::string session_id;  ///< of the current (or last) stream
+  LinkStats link;
 };
 
 class Session {
@@ -138,6 +157,14 @@ class Session {
   void Run(std::stop_token st);
   void Serve(Stream& s, std::stop_token st);
   void ReadLoop(Stream* s);
+  /// Publishes an update that has arrived (directly, or out of the
+  /// emulated link) to the IR mailbox and counts it. One thread at a time:
+  /// the reader, or the link's delivery thread.
+  void Accept(const v1::ContactUpdate& u, std::int64_t now_ns);
+  /// With an emulated link: hands due updates to Accept until `done`.
+  void DeliverLoop(const std::atomic<bool>& done);
+  /// Writes one pose to the stream (false: the stream is broken).
+  bool WritePose(Stream& s, const device::ProxySample& x, v1::CoupleRequest* req);
 
   SessionOptions options_;
   const device::Clock* clock_;
@@ -152,6 +179,14 @@ class Session {
   std::atomic<bool> stopping_{false};
   std::atomic<bool> connected_{false};
   std::atomic<std::int64_t> stall_until_ns_{0};  // StallUpdatesFor (clock_ time)
+
+  // The emulated link (options_.link), or none.
+  struct Link {
+    explicit Link(const LinkOptions& o) : poses(o, kLinkUp), updates(o, kLinkDown) {}
+    DelayLine<device::ProxySample> poses;
+    DelayLine<v1::ContactUpdate> updates;
+  };
+  std::unique_ptr<Link> link_;
 
   // Pose send times, by sequence (written by the network thread, read by
   // the reader thread).
