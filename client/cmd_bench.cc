@@ -1,6 +1,7 @@
 // hapticpd bench table1|accuracy|peers: what accuracy costs in time, on the
 // seed paper's benchmarks (client/bench/). Prints tables (or JSON) and,
-// for accuracy, writes Pareto plots as SVG.
+// for accuracy, writes Pareto plots as SVG. hapticpd bench delay: how the
+// feel survives a slow link (client/bench/delay.h), with a force plot.
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -8,9 +9,11 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <sstream>
 #include <string>
 
 #include "client/bench/accuracy.h"
+#include "client/bench/delay.h"
 #include "client/bench/peers.h"
 #include "client/bench/scenarios.h"
 #include "client/bench/table1.h"
@@ -140,6 +143,102 @@ void RunAccuracyCmd(const BenchOptions& o) {
   }
 }
 
+struct DelayCmdOptions {
+  std::string models;
+  bool models_given = false;
+  bool json = false;
+  std::string out = "hapticpd-bench-delay";
+  std::string delays = "0,5,20,50,100,200";
+  std::string scripts = "press,slide,twist";
+  double time_scale = 1;
+  std::uint64_t seed = 1;
+};
+
+std::vector<std::string> SplitCommas(const std::string& s) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, ',')) out.push_back(item);
+  return out;
+}
+
+void RunDelayCmd(const DelayCmdOptions& o) {
+  bench::DelayBenchOptions d;
+  d.delays_ms.clear();
+  for (const std::string& item : SplitCommas(o.delays)) {
+    std::size_t used = 0;
+    double ms = -1;
+    try {
+      ms = std::stod(item, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used != item.size() || !(ms >= 0 && ms <= 10000)) {
+      throw CommandError(
+          "bench delay: --delays: expected comma-separated milliseconds in [0, "
+          "10000], got '" +
+          item + "'");
+    }
+    d.delays_ms.push_back(ms);
+  }
+  if (d.delays_ms.empty()) throw CommandError("bench delay: --delays: give at least one delay");
+  d.scripts = SplitCommas(o.scripts);
+  if (d.scripts.empty()) throw CommandError("bench delay: --scripts: give at least one script");
+  for (const std::string& s : d.scripts) {
+    if (s != "press" && s != "slide" && s != "twist") {
+      throw CommandError("bench delay: --scripts: unknown script '" + s +
+                         "' (press, slide, twist)");
+    }
+  }
+  if (!(o.time_scale >= 0.05 && o.time_scale <= 20)) {
+    throw CommandError("bench delay: --time-scale: expected 0.05 to 20");
+  }
+  d.time_scale = o.time_scale;
+  d.seed = o.seed;
+  {
+    BenchOptions b;
+    b.models = o.models;
+    b.models_given = o.models_given;
+    d.models = ResolveModels("delay", b);
+  }
+  const std::filesystem::path out(o.out);
+  std::error_code ec;
+  std::filesystem::create_directories(out, ec);
+  if (!std::filesystem::is_directory(out)) {
+    throw CommandError("bench delay: --out: cannot create folder '" + o.out + "'");
+  }
+  std::ostream& notes = o.json ? std::cerr : std::cout;
+  notes << "hapticpd bench delay: " << d.delays_ms.size() << " delays x " << d.scripts.size()
+        << " scripts in real time\n";
+  bench::DelayReport report;
+  try {
+    report = bench::RunDelayBench(d, &notes);
+  } catch (const std::exception& e) {
+    throw CommandError(std::string("bench delay: ") + e.what());
+  }
+  std::string command = "hapticpd bench delay --delays " + o.delays + " --scripts " + o.scripts;
+  if (o.time_scale != 1) command += " --time-scale " + std::to_string(o.time_scale);
+  if (o.models_given) command += " --models " + o.models;
+  const std::time_t now = std::time(nullptr);
+  char date[64];
+  std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
+  const std::filesystem::path svg = out / "delay_force.svg";
+  try {
+    bench::WriteDelaySvg(svg, report,
+                         std::string("hapticpd bench delay, ") + date + ": " + command);
+  } catch (const std::runtime_error& e) {
+    throw CommandError(std::string("bench delay: ") + e.what());
+  }
+  if (o.json) {
+    nlohmann::json j = bench::ToJson(report);
+    j["svg"] = svg.string();
+    std::cout << j.dump(2) << "\n";
+  } else {
+    bench::PrintDelay(std::cout, report);
+    std::cout << "wrote " << svg.string() << "\n";
+  }
+}
+
 }  // namespace
 
 void RegisterBench(CLI::App& app) {
@@ -203,6 +302,31 @@ void RegisterBench(CLI::App& app) {
         "FCL) and one boolean collision query, on the same poses; ratios and errors");
     add_common(cmd, o, 1000);
     cmd->callback([o] { RunPeersCmd(*o); });
+  }
+  {
+    auto o = std::make_shared<DelayCmdOptions>();
+    auto* cmd = bench->add_subcommand(
+        "delay",
+        "The same scripted hands (press a box, slide on the bunny, twist in a slot) at one-way "
+        "delays with +-20% jitter, in real time through an in-process server and the emulated "
+        "link: force, felt stiffness, penetration, passivity, free-space drag; goals against "
+        "0 ms; a force plot");
+    cmd->add_option("--models", o->models,
+                    "Folder with stanford-bunny.obj (default $HAPTICPD_MODELS_DIR or "
+                    "../shared/models; without it a torus knot is used)")
+        ->type_name("DIR")
+        ->each([o](const std::string&) { o->models_given = true; });
+    cmd->add_flag("--json", o->json, "Print JSON (progress goes to stderr)");
+    cmd->add_option("--out", o->out, "Folder for delay_force.svg")->capture_default_str();
+    cmd->add_option("--delays", o->delays, "One-way delays (ms), comma-separated")
+        ->capture_default_str();
+    cmd->add_option("--scripts", o->scripts, "Scripts to run: press, slide, twist")
+        ->capture_default_str();
+    cmd->add_option("--time-scale", o->time_scale,
+                    "Multiply every script's duration (smaller: faster, for tests)")
+        ->capture_default_str();
+    cmd->add_option("--seed", o->seed, "Seed of the emulated link's jitter")->capture_default_str();
+    cmd->callback([o] { RunDelayCmd(*o); });
   }
 }
 

@@ -1,7 +1,8 @@
 // The code paths of `hapticpd bench` (client/bench/) on tiny inputs: small
 // procedural meshes and a few frames, so that they cannot rot. Asserts
 // structure and sanity (fields present, errors >= 0, reference bounds not
-// below exact answers), never wall-clock time.
+// below exact answers), never wall-clock time. `bench delay` runs in real
+// time by nature; its tests look at the output's structure only.
 #include <gtest/gtest.h>
 
 #include <nlohmann/json.hpp>
@@ -325,6 +326,102 @@ TEST(BenchCli, BadArgumentsGetOneLineAndANonZeroExit) {
   for (const char* args :
        {"bench", "bench table1 --frames 0", "bench table1 --frames abc", "bench accuracy --poses 0",
         "bench peers --bogus", "bench accuracy --tiny --frames 8 --svg /proc/hapticpd-no/such"}) {
+    const auto r = RunCli(args);
+    EXPECT_NE(r.exit_code, 0) << args;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << args << ": " << r.err;
+    EXPECT_EQ(r.err.rfind("hapticpd: ", 0), 0u) << args << ": " << r.err;
+  }
+}
+
+// `bench delay` runs in real time; a tiny run (two delays, two short
+// scripts, the torus knot for the slide) checks the output's structure and
+// the plot, never the figures' values or the time taken.
+TEST(BenchCli, DelayJsonHasEveryRunFieldAndGoalAndWritesThePlot) {
+  const auto dir = std::filesystem::temp_directory_path() / "hapticpd_bench_cli_delay";
+  std::filesystem::remove_all(dir);
+  const auto r = RunCli(
+      "bench delay --delays 0,20 --scripts press,slide,twist --time-scale 0.2 "
+      "--json --out '" +
+          dir.string() + "'",
+      "/nonexistent-hapticpd-models");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["slide_body"], "torusknot");
+  ASSERT_EQ(j["runs"].size(), 6u);
+  std::set<std::string> scripts;
+  for (const nlohmann::json& run : j["runs"]) {
+    scripts.insert(run["script"].get<std::string>());
+    for (const char* key : {"delay_ms",
+                            "jitter_ms",
+                            "ticks",
+                            "contact_ticks",
+                            "peak_force_n",
+                            "mean_force_n",
+                            "peak_torque_nm",
+                            "stiffness_n_per_m",
+                            "felt_surface_m",
+                            "surface_error_m",
+                            "handle_max_depth_m",
+                            "proxy_max_depth_m",
+                            "passivity_min_j",
+                            "passivity_tolerance_j",
+                            "energy_into_hand_j",
+                            "free_drag_n",
+                            "free_ticks",
+                            "patch_bytes_per_s",
+                            "answered",
+                            "rtt_p50_ms",
+                            "updates",
+                            "late_ticks"}) {
+      EXPECT_TRUE(run.contains(key)) << key;
+    }
+    EXPECT_GT(run["ticks"].get<int>(), 0);
+    EXPECT_EQ(run["patch_bytes_per_s"].get<double>(), 0.0) << "there are no patches yet";
+    EXPECT_EQ(run["answered"]["local_patch"].get<double>(), 0.0);
+    EXPECT_EQ(run["jitter_ms"].get<double>(), 0.2 * run["delay_ms"].get<double>());
+    if (run["contact_ticks"].get<int>() > 0) {
+      const auto& a = run["answered"];
+      EXPECT_NEAR(
+          a["server_rows"].get<double>() + a["faded"].get<double>() + a["no_rows"].get<double>(),
+          1.0, 1e-9);
+    }
+  }
+  EXPECT_EQ(scripts, (std::set<std::string>{"press", "slide", "twist"}));
+  // Without 50/100/200 ms runs only the goals that hold for any delay.
+  ASSERT_EQ(j["goals"].size(), 2u);
+  for (const nlohmann::json& g : j["goals"]) {
+    EXPECT_TRUE(g.contains("met") && g.contains("figures")) << g.dump();
+  }
+  std::ifstream svg(dir / "delay_force.svg");
+  ASSERT_TRUE(svg.good());
+  std::stringstream text;
+  text << svg.rdbuf();
+  for (const char* want : {"<svg", "press", "slide", "twist", "0 ms", "20 ms", "bench delay"}) {
+    EXPECT_NE(text.str().find(want), std::string::npos) << want;
+  }
+  std::filesystem::remove_all(dir);
+}
+
+TEST(BenchCli, DelayTableNamesTheGoalsAndTheStandIn) {
+  const auto dir = std::filesystem::temp_directory_path() / "hapticpd_bench_cli_delay_table";
+  const auto r = RunCli("bench delay --delays 0,50 --scripts press,slide --time-scale 0.1 --out '" +
+                            dir.string() + "'",
+                        "/nonexistent-hapticpd-models");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* want : {"torus knot", "press", "slide", "peak N", "k N/m", "goals",
+                           "50 ms: peak force within 10% of 0 ms", "free space <= 0.05 N",
+                           "passive everywhere", "delay_force.svg"}) {
+    EXPECT_NE(r.out.find(want), std::string::npos) << want << "\n" << r.out;
+  }
+  std::filesystem::remove_all(dir);
+}
+
+TEST(BenchCli, DelayBadArgumentsGetOneLineAndANonZeroExit) {
+  for (const char* args :
+       {"bench delay --delays -5", "bench delay --delays abc", "bench delay --delays 0,,5",
+        "bench delay --delays 20000", "bench delay --scripts nope", "bench delay --scripts ''",
+        "bench delay --time-scale 0", "bench delay --models /nonexistent-hapticpd-models",
+        "bench delay --out /proc/hapticpd-no/such"}) {
     const auto r = RunCli(args);
     EXPECT_NE(r.exit_code, 0) << args;
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << args << ": " << r.err;
