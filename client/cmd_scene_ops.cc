@@ -1,9 +1,12 @@
 // Thin CLIs over SceneService: `hapticpd inject`, `move`, `remove` and
-// `scene list|create|delete|get|load`. Each prints what it did on stdout (the
-// body id first) and fails with "hapticpd: CMD: STATUS: message".
+// `scene list|create|delete|get|load|export|import`. Each prints what it did
+// on stdout (the body id first) and fails with "hapticpd: CMD: STATUS:
+// message". Every mutation carries a fresh request id (NewRequestId).
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <string>
@@ -71,6 +74,7 @@ void RunInject(const InjectOptions& o) {
   }
   v1::AddBodyHeader h;
   h.set_scene_id(o.scene);
+  h.set_request_id(NewRequestId());
   auto* spec = h.mutable_spec();
   spec->set_body_id(o.id);
   *spec->mutable_pose() = ParsePose(o.pose, "--pose");
@@ -105,6 +109,7 @@ void RunMove(const MoveOptions& o) {
   v1::MoveBodyRequest req;
   req.set_scene_id(o.scene);
   req.set_body_id(o.body);
+  req.set_request_id(NewRequestId());
   *req.mutable_pose() = ParsePose(o.pose, "--pose");
   if (!o.velocity.empty()) *req.mutable_velocity() = ParseTwist(o.velocity, "--velocity");
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
@@ -123,6 +128,7 @@ void RunRemove(const RemoveOptions& o) {
   v1::RemoveBodyRequest req;
   req.set_scene_id(o.scene);
   req.set_body_id(o.body);
+  req.set_request_id(NewRequestId());
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
   auto ctx = MakeContext(o.conn);
   v1::RemoveBodyResponse resp;
@@ -136,8 +142,43 @@ struct SceneOptions {
   std::string scene;    ///< the scene id, or for `load` the scene file
   std::string load_id;  ///< `load --scene ID`: overrides the file's scene id
   std::string description;
+  std::string dir;  ///< `export ID DIR`
   std::size_t chunk_kib = 64;
 };
+
+/// A mesh file written by `scene export` (only "v X Y Z" and "f A B C"
+/// lines, numbers in full double precision), read back exactly: the mesh
+/// readers of `pd` read coordinates in single precision. False for any other
+/// file (it is then uploaded as a file).
+bool ReadExportedObj(const std::string& path, v1::InlineMesh* out) {
+  std::ifstream in(path);
+  std::string line;
+  if (!std::getline(in, line) || line != "# hapticpd scene export") return false;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    char* end = nullptr;
+    const char* p = line.c_str() + 2;
+    if (line.rfind("v ", 0) == 0) {
+      for (int k = 0; k < 3; ++k) {
+        out->add_vertices(std::strtod(p, &end));
+        if (end == p) return false;
+        p = end;
+      }
+    } else if (line.rfind("f ", 0) == 0) {
+      for (int k = 0; k < 3; ++k) {
+        const unsigned long i = std::strtoul(p, &end, 10);
+        if (end == p || i == 0) return false;
+        out->add_triangles(static_cast<std::uint32_t>(i - 1));
+        p = end;
+      }
+    } else {
+      return false;
+    }
+    while (*p == ' ') ++p;
+    if (*p != 0) return false;
+  }
+  return out->triangles_size() > 0;
+}
 
 /// `scene load FILE`: the scene file's scene (id, description, SceneConfig)
 /// created through CreateScene, then its bodies added in file order through
@@ -145,12 +186,13 @@ struct SceneOptions {
 /// file, mesh extensions, mesh bytes) is checked before anything is sent; a
 /// body the server rejects deletes the scene again, so no half-loaded scene
 /// stays. Prints the scene id, then one body id a line.
-void RunSceneLoad(const SceneOptions& o) {
+void RunSceneLoad(const SceneOptions& o, const std::string& file, bool exact_meshes) {
+  const std::string cmd = exact_meshes ? "scene import" : "scene load";
   server::SceneFile f;
   try {
-    f = server::ParseSceneFile(o.scene);
+    f = server::ParseSceneFile(file);
   } catch (const server::SceneFileError& e) {
-    throw CommandError(std::string("scene load: ") + e.what());
+    throw CommandError(cmd + ": " + e.what());
   }
   const std::string id = o.load_id.empty() ? f.scene_id : o.load_id;
   struct Upload {
@@ -162,12 +204,19 @@ void RunSceneLoad(const SceneOptions& o) {
     const server::SceneFileBody& b = f.bodies[i];
     Upload& u = uploads.emplace_back();
     u.header.set_scene_id(id);
+    u.header.set_request_id(NewRequestId());
     *u.header.mutable_spec() = b.spec;
     if (b.mesh_path.empty()) {
       u.header.set_shape(b.shape);
       continue;
     }
-    const std::string key = "scene load: " + f.path + ": bodies[" + std::to_string(i) + "].mesh";
+    // Inline (exact doubles) when it fits well within a gRPC message.
+    if (exact_meshes && std::filesystem::file_size(b.mesh_path) < (2u << 20) &&
+        ReadExportedObj(b.mesh_path, u.header.mutable_inline_mesh())) {
+      continue;
+    }
+    u.header.clear_mesh();
+    const std::string key = cmd + ": " + f.path + ": bodies[" + std::to_string(i) + "].mesh";
     u.header.set_format(FormatOf(b.mesh_path, key));
     u.bytes = ReadBytes(b.mesh_path, key);
     u.header.set_total_bytes(u.bytes.size());
@@ -179,9 +228,10 @@ void RunSceneLoad(const SceneOptions& o) {
     req.set_scene_id(id);
     req.set_description(o.description.empty() ? f.description : o.description);
     *req.mutable_config() = f.config;
+    req.set_request_id(NewRequestId());
     v1::SceneSummary resp;
     auto ctx = MakeContext(o.conn);
-    Check(stub->CreateScene(ctx.get(), req, &resp), "scene load: " + f.path);
+    Check(stub->CreateScene(ctx.get(), req, &resp), cmd + ": " + f.path);
   }
   const std::size_t chunk = std::max<std::size_t>(1, o.chunk_kib) * 1024;
   std::vector<std::string> body_ids;
@@ -196,12 +246,13 @@ void RunSceneLoad(const SceneOptions& o) {
     // Roll back: the scene is ours (CreateScene succeeded above).
     v1::DeleteSceneRequest del;
     del.set_scene_id(id);
+    del.set_request_id(NewRequestId());
     v1::DeleteSceneResponse del_resp;
     auto ctx = MakeContext(o.conn);
     const grpc::Status d = stub->DeleteScene(ctx.get(), del, &del_resp);
     const std::string& body_id = uploads[i].header.spec().body_id();
     throw CommandError(
-        "scene load: " + f.path + ": bodies[" + std::to_string(i) + "]" +
+        cmd + ": " + f.path + ": bodies[" + std::to_string(i) + "]" +
         (body_id.empty() ? "" : " ('" + body_id + "')") + ": " + StatusText(s) +
         (d.ok() ? "; scene '" + id + "' deleted again"
                 : "; rollback failed, scene '" + id + "' is left half-loaded: " + StatusText(d)));
@@ -212,13 +263,109 @@ void RunSceneLoad(const SceneOptions& o) {
 
 nlohmann::json Vec(const v1::Vec3& v) { return {v.x(), v.y(), v.z()}; }
 
+/// `scene export ID DIR`: DIR/scene.json (a scene file: config, bodies with
+/// ids, labels, poses, velocities, materials, movable flags) and
+/// DIR/meshes/BODY.obj, each mesh in full double precision. `scene import
+/// DIR` reads them back into a server.
+void RunSceneExport(const SceneOptions& o) {
+  namespace fs = std::filesystem;
+  if (o.scene.empty() || o.dir.empty()) throw CommandError("scene export: give ID DIR");
+  const fs::path dir = o.dir;
+  const fs::path file = dir / "scene.json";
+  if (fs::exists(file)) {
+    throw CommandError("scene export: " + file.string() + " exists (export into a new folder)");
+  }
+  auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
+  v1::GetSceneRequest req;
+  req.set_scene_id(o.scene);
+  req.set_include_meshes(true);
+  v1::Scene sc;
+  auto ctx = MakeContext(o.conn);
+  Check(stub->GetScene(ctx.get(), req, &sc), "scene export");
+  std::error_code ec;
+  fs::create_directories(dir / "meshes", ec);
+  if (ec) throw CommandError("scene export: " + dir.string() + ": " + ec.message());
+
+  const v1::SceneConfig& c = sc.config();
+  nlohmann::json j;
+  j["scene"] = sc.scene_id();
+  j["description"] = sc.description();
+  // Every config field written out, so that the import gets the same config.
+  if (c.pd_mode() != v1::PD_MODE_UNSPECIFIED) j["mode"] = server::PdModeName(c.pd_mode());
+  if (c.declared()) {
+    j["effects"] = nlohmann::json::array();
+    for (int e : c.effects()) j["effects"].push_back(server::EffectName(v1::Effect(e)));
+  }
+  j["gravity"] = Vec(c.gravity());
+  j["texture"] = {{"amplitude", c.texture_amplitude()}, {"frequency", c.texture_frequency()}};
+  if (!c.probe_shape().empty() || c.probe_mass() > 0 || c.probe_inertia() > 0) {
+    nlohmann::json p = nlohmann::json::object();
+    if (!c.probe_shape().empty()) p["shape"] = c.probe_shape();
+    if (c.probe_mass() > 0) p["mass"] = c.probe_mass();
+    if (c.probe_inertia() > 0) p["inertia"] = c.probe_inertia();
+    j["probe"] = p;
+  }
+  j["bodies"] = nlohmann::json::array();
+  for (const v1::Body& b : sc.bodies()) {
+    const std::string mesh = "meshes/" + b.body_id() + ".obj";
+    const fs::path mesh_path = dir / mesh;
+    std::FILE* out = std::fopen(mesh_path.c_str(), "w");
+    if (out == nullptr) throw CommandError("scene export: cannot write " + mesh_path.string());
+    std::fprintf(out, "# hapticpd scene export\n");
+    const auto& v = b.mesh().vertices();
+    for (int i = 0; i + 2 < v.size(); i += 3) {
+      std::fprintf(out, "v %.17g %.17g %.17g\n", v[i], v[i + 1], v[i + 2]);
+    }
+    const auto& t = b.mesh().triangles();
+    for (int i = 0; i + 2 < t.size(); i += 3) {
+      std::fprintf(out, "f %u %u %u\n", t[i] + 1, t[i + 1] + 1, t[i + 2] + 1);
+    }
+    if (std::fclose(out) != 0) {
+      throw CommandError("scene export: cannot write " + mesh_path.string());
+    }
+    const auto& q = b.pose().orientation();
+    const auto& m = b.material();
+    j["bodies"].push_back(
+        {{"id", b.body_id()},
+         {"label", b.label()},
+         {"mesh", mesh},
+         {"pose",
+          {{"position", Vec(b.pose().position())}, {"orientation", {q.w(), q.x(), q.y(), q.z()}}}},
+         {"velocity",
+          {{"linear", Vec(b.velocity().linear())}, {"angular", Vec(b.velocity().angular())}}},
+         {"material",
+          {{"stiffness", m.stiffness()},
+           {"rotational_stiffness", m.rotational_stiffness()},
+           {"damping", m.damping()},
+           {"static_friction", m.static_friction()},
+           {"dynamic_friction", m.dynamic_friction()}}},
+         {"movable", b.movable()}});
+  }
+  std::ofstream f(file);
+  f << j.dump(2) << "\n";
+  if (!f.flush()) throw CommandError("scene export: cannot write " + file.string());
+  std::cout << file.string() << "\n";
+}
+
 void RunScene(const SceneOptions& o) {
   if (o.action == "load") {
     if (o.scene.empty()) throw CommandError("scene load: give FILE.json");
-    RunSceneLoad(o);
+    RunSceneLoad(o, o.scene, false);
     return;
   }
-  if (!o.load_id.empty()) throw CommandError("scene " + o.action + ": --scene is for load only");
+  if (o.action == "import") {
+    if (o.scene.empty()) throw CommandError("scene import: give DIR (written by scene export)");
+    RunSceneLoad(o, (std::filesystem::path(o.scene) / "scene.json").string(), true);
+    return;
+  }
+  if (o.action == "export") {
+    RunSceneExport(o);
+    return;
+  }
+  if (!o.dir.empty()) throw CommandError("scene " + o.action + ": too many arguments");
+  if (!o.load_id.empty()) {
+    throw CommandError("scene " + o.action + ": --scene is for load only");
+  }
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
   auto ctx = MakeContext(o.conn);
   if (o.action != "list" && o.scene.empty()) throw CommandError("scene " + o.action + ": give ID");
@@ -234,12 +381,14 @@ void RunScene(const SceneOptions& o) {
     v1::CreateSceneRequest req;
     req.set_scene_id(o.scene);
     req.set_description(o.description);
+    req.set_request_id(NewRequestId());
     v1::SceneSummary resp;
     Check(stub->CreateScene(ctx.get(), req, &resp), "scene create");
     std::cout << resp.scene_id() << "\n";
   } else if (o.action == "delete") {
     v1::DeleteSceneRequest req;
     req.set_scene_id(o.scene);
+    req.set_request_id(NewRequestId());
     v1::DeleteSceneResponse resp;
     Check(stub->DeleteScene(ctx.get(), req, &resp), "scene delete");
     std::cout << o.scene << " deleted\n";
@@ -265,7 +414,7 @@ void RunScene(const SceneOptions& o) {
     std::cout << j.dump(2) << "\n";
   } else {
     throw CommandError("scene: unknown action '" + o.action +
-                       "' (list, create, delete, get, load)");
+                       "' (list, create, delete, get, load, export, import)");
   }
 }
 
@@ -310,13 +459,20 @@ void RegisterSceneOps(CLI::App& app) {
     auto o = std::make_shared<SceneOptions>();
     auto* cmd = app.add_subcommand(
         "scene",
-        "List, create, delete or show scenes, or load a scene file (scene load FILE.json)");
+        "List, create, delete or show scenes, load a scene file (scene load FILE.json), or "
+        "move a scene between servers (scene export ID DIR, then scene import DIR)");
     AddConnectionOptions(cmd, &o->conn);
-    cmd->add_option("action", o->action, "list | create | delete | get | load")->required();
-    cmd->add_option("id", o->scene, "Scene id (create, delete, get), or FILE.json (load)");
+    cmd->add_option("action", o->action, "list | create | delete | get | load | export | import")
+        ->required();
+    cmd->add_option("id", o->scene,
+                    "Scene id (create, delete, get, export), FILE.json (load) or DIR (import)");
+    cmd->add_option("dir", o->dir,
+                    "export: the folder to write (scene.json and meshes/BODY.obj, every number "
+                    "in full precision)");
     cmd->add_option("--description", o->description,
                     "Description (create; load: instead of the file's)");
-    cmd->add_option("--scene", o->load_id, "load: scene id instead of the file's \"scene\"");
+    cmd->add_option("--scene", o->load_id,
+                    "load, import: scene id instead of the file's \"scene\"");
     cmd->add_option("--chunk-kib", o->chunk_kib, "load: mesh upload chunk size in KiB")
         ->capture_default_str();
     cmd->callback([o] { RunScene(*o); });

@@ -16,6 +16,8 @@ namespace {
 struct ServeOptions {
   server::ServerOptions server;
   std::string log_level = "info";
+  std::string state;
+  bool ephemeral = false;
 };
 
 void RunServe(const ServeOptions& o) {
@@ -24,6 +26,18 @@ void RunServe(const ServeOptions& o) {
     throw CommandError("serve: --log-level: unknown level '" + o.log_level + "'");
   }
   spdlog::set_level(level);
+  ServeOptions opts = o;
+  if (o.ephemeral) {
+    if (!o.state.empty()) throw CommandError("serve: give --state DIR or --ephemeral, not both");
+    opts.server.state_dir.clear();
+  } else {
+    opts.server.state_dir = o.state.empty() ? server::DefaultStateDir() : o.state;
+    if (opts.server.state_dir.empty()) {
+      throw CommandError(
+          "serve: no state directory: neither XDG_STATE_HOME nor HOME is set; give --state DIR "
+          "or --ephemeral");
+    }
+  }
   // Block the signals in every thread (gRPC's inherit the mask) and take
   // them synchronously below.
   sigset_t set;
@@ -31,7 +45,7 @@ void RunServe(const ServeOptions& o) {
   sigaddset(&set, SIGINT);
   sigaddset(&set, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &set, nullptr);
-  server::HapticServer srv(o.server);
+  server::HapticServer srv(opts.server);
   try {
     srv.Start();
   } catch (const std::exception& e) {
@@ -67,8 +81,18 @@ void RegisterServe(CLI::App& app) {
       ->check(CLI::ExistingFile);
   cmd->add_option("--scene", s.scene_files,
                   "Scene file (JSON: bodies, probe, PD mode, effects; README \"Scene files "
-                  "and effects\") to preload; repeatable. Without one: an empty scene 'default'")
+                  "and effects\") to preload; repeatable. A scene the state directory holds is "
+                  "not loaded again. Without one (and an empty state directory): an empty scene "
+                  "'default'")
       ->check(CLI::ExistingFile);
+  cmd->add_option("--state", o->state,
+                  "State directory: scenes, bodies (meshes included), poses, materials, configs "
+                  "and request ids are kept there (SQLite, DIR/scenes.db) and served again after "
+                  "a restart; structural changes are on disk before they are acknowledged, "
+                  "poses within 100 ms. One server per directory. Default: "
+                  "$XDG_STATE_HOME/hapticpd, else ~/.local/state/hapticpd");
+  cmd->add_flag("--ephemeral", o->ephemeral,
+                "Keep everything in memory only (nothing survives the process)");
   cmd->add_option("--status-interval", s.status_interval_s,
                   "Seconds between status lines (0: none)")
       ->capture_default_str();
@@ -91,8 +115,7 @@ void RegisterServe(CLI::App& app) {
                   "as zero force and no rows (CONTACT_STATUS_WITHHELD)")
       ->check(CLI::Range(1e-3, 1e9))
       ->capture_default_str();
-  cmd->add_option("--max-update-torque", s.limits.max_update_torque,
-                  "N m: likewise for the torque")
+  cmd->add_option("--max-update-torque", s.limits.max_update_torque, "N m: likewise for the torque")
       ->check(CLI::Range(1e-3, 1e9))
       ->capture_default_str();
   cmd->add_option("--idle-timeout", s.limits.idle_timeout_s,

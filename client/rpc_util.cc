@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cstdlib>
 #include <fstream>
+#include <random>
 #include <sstream>
 #include <vector>
 
@@ -70,6 +71,18 @@ std::unique_ptr<grpc::ClientContext> MakeContext(const ConnectionOptions& o, boo
                       std::chrono::milliseconds(static_cast<std::int64_t>(o.timeout_s * 1000)));
   }
   return ctx;
+}
+
+std::string NewRequestId() {
+  static thread_local std::mt19937_64 rng = [] {
+    std::random_device rd;
+    std::seed_seq seq{rd(), rd(), rd(), rd()};
+    return std::mt19937_64(seq);
+  }();
+  static const char* hex = "0123456789abcdef";
+  std::string id = "cli-";
+  for (int i = 0; i < 24; ++i) id += hex[rng() & 15];
+  return id;
 }
 
 std::string StatusText(const grpc::Status& s) {

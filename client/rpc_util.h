@@ -35,6 +35,11 @@ std::string StatusText(const grpc::Status& s);
 /// Throws CommandError "CMD: CODE: message" for a non-OK status.
 void Check(const grpc::Status& s, const std::string& cmd);
 
+/// A fresh request id for one mutation (server/README.md "Idempotent
+/// mutations"): "cli-" and 24 random hex digits. A retry of that mutation
+/// sends the same id.
+std::string NewRequestId();
+
 /// "x,y,z" or "x,y,z,qw,qx,qy,qz" (metres; unit quaternion w, x, y, z).
 v1::Pose ParsePose(const std::string& text, const std::string& option);
 /// "vx,vy,vz" or "vx,vy,vz,wx,wy,wz".

@@ -11,6 +11,7 @@ PACKAGES=(
   python3-grpcio python3-protobuf  # client/python (the Python client) and its tests
   libeigen3-dev libopenmesh-dev libspdlog-dev libfmt-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev
+  libsqlite3-dev libssl-dev  # the server's state directory (server/store.h)
   libfcl-dev libccd-dev libbullet-dev
   clang libclang-rt-14-dev  # the `fuzz` preset: clang and its libFuzzer/ASan runtimes
 )

@@ -8,9 +8,9 @@
 #include <condition_variable>
 #include <deque>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
-#include <map>
 #include <set>
 #include <string>
 #include <thread>
@@ -19,6 +19,7 @@
 #include "server/scene.h"
 #include "server/server.h"
 #include "server/stats.h"
+#include "server/store.h"
 
 #if defined(__SANITIZE_THREAD__)
 #include <sanitizer/tsan_interface.h>
@@ -146,6 +147,11 @@ struct Core {
       : limits(l), builds(std::max(1, l.build_threads), std::max(1, l.max_builds_per_client)) {}
 
   Limits limits;
+  /// The state directory's database; null when the server keeps everything
+  /// in memory only.
+  std::unique_ptr<SceneStore> store;
+  /// Outcomes of mutations sent with a request id (set by HapticServer::Start).
+  std::unique_ptr<RequestLog> requests;
   TokenStore tokens;
   ChangeSignal signal;
   SceneRegistry scenes{&signal};
@@ -168,6 +174,12 @@ struct Core {
   int active_calls() const;
   /// Waits until no call is registered or `timeout` passes; true when none is left.
   bool WaitNoCalls(std::chrono::milliseconds timeout);
+
+  /// Writes `fill` durably in one transaction when there is a store (else
+  /// OK at once): call it from a write hook, before the change is published.
+  grpc::Status Commit(const std::function<void(SceneStore::Txn&)>& fill) {
+    return store ? store->Write(fill) : grpc::Status::OK;
+  }
 
   grpc::Status Unavailable() const {
     return grpc::Status(grpc::StatusCode::UNAVAILABLE, "server is shutting down");

@@ -38,7 +38,7 @@ void Scene::Publish(std::shared_ptr<SceneSnapshot> next) {
 }
 
 grpc::Status Scene::AddBody(BodyState body, std::size_t max_bodies, BodyState* added,
-                            const std::string& id_field) {
+                            const std::string& id_field, const WriteHook& hook) {
   std::lock_guard lock(write_mu_);
   if (deleted())
     return grpc::Status(grpc::StatusCode::NOT_FOUND, "scene '" + id_ + "' was deleted");
@@ -48,6 +48,7 @@ grpc::Status Scene::AddBody(BodyState body, std::size_t max_bodies, BodyState* a
                         "scene '" + id_ + "' already holds " + std::to_string(cur->bodies.size()) +
                             " bodies (server limit " + std::to_string(max_bodies) + ")");
   }
+  const std::uint64_t first_number = next_body_number_;
   if (body.id.empty()) {
     do {
       body.id = "body-" + std::to_string(next_body_number_++);
@@ -55,6 +56,12 @@ grpc::Status Scene::AddBody(BodyState body, std::size_t max_bodies, BodyState* a
   } else if (cur->Find(body.id) != nullptr) {
     return grpc::Status(grpc::StatusCode::ALREADY_EXISTS,
                         id_field + ": scene '" + id_ + "' already has a body '" + body.id + "'");
+  }
+  if (hook) {
+    if (auto s = hook({&body, cur->revision + 1, next_body_number_}); !s.ok()) {
+      next_body_number_ = first_number;
+      return s;
+    }
   }
   auto next = std::make_shared<SceneSnapshot>(*cur);
   next->revision = cur->revision + 1;
@@ -66,7 +73,7 @@ grpc::Status Scene::AddBody(BodyState body, std::size_t max_bodies, BodyState* a
 }
 
 grpc::Status Scene::MoveBody(const std::string& id, const Pose& X_WB, const Vec3* v_W,
-                             const Vec3* w_W, std::uint64_t* revision) {
+                             const Vec3* w_W, std::uint64_t* revision, const WriteHook& hook) {
   std::lock_guard lock(write_mu_);
   if (deleted())
     return grpc::Status(grpc::StatusCode::NOT_FOUND, "scene '" + id_ + "' was deleted");
@@ -87,13 +94,17 @@ grpc::Status Scene::MoveBody(const std::string& id, const Pose& X_WB, const Vec3
     nb.X_WB = X_WB;
     nb.v_W = v_W ? *v_W : Vec3::Zero();
     nb.w_W = w_W ? *w_W : Vec3::Zero();
+    if (hook) {
+      if (auto s = hook({&nb, next->revision, next_body_number_}); !s.ok()) return s;
+    }
   }
   if (revision) *revision = next->revision;
   Publish(std::move(next));
   return grpc::Status::OK;
 }
 
-grpc::Status Scene::RemoveBody(const std::string& id, std::uint64_t* revision) {
+grpc::Status Scene::RemoveBody(const std::string& id, std::uint64_t* revision,
+                               const WriteHook& hook) {
   std::lock_guard lock(write_mu_);
   if (deleted())
     return grpc::Status(grpc::StatusCode::NOT_FOUND, "scene '" + id_ + "' was deleted");
@@ -101,6 +112,9 @@ grpc::Status Scene::RemoveBody(const std::string& id, std::uint64_t* revision) {
   if (cur->Find(id) == nullptr) {
     return grpc::Status(grpc::StatusCode::NOT_FOUND,
                         "body_id: scene '" + id_ + "' has no body '" + id + "'");
+  }
+  if (hook) {
+    if (auto s = hook({nullptr, cur->revision + 1, next_body_number_}); !s.ok()) return s;
   }
   auto next = std::make_shared<SceneSnapshot>();
   next->revision = cur->revision + 1;
@@ -121,6 +135,31 @@ void Scene::MarkDeleted() {
   }
   signal_->Notify();
   changes_.Notify();
+}
+
+grpc::Status Scene::MarkDeleted(const std::function<grpc::Status()>& hook) {
+  {
+    std::lock_guard lock(write_mu_);
+    if (deleted())
+      return grpc::Status(grpc::StatusCode::NOT_FOUND, "scene_id: no scene '" + id_ + "'");
+    if (hook) {
+      if (auto s = hook(); !s.ok()) return s;
+    }
+    deleted_.store(true, std::memory_order_release);
+  }
+  signal_->Notify();
+  changes_.Notify();
+  return grpc::Status::OK;
+}
+
+std::uint64_t Scene::next_body_number() const {
+  std::lock_guard lock(write_mu_);
+  return next_body_number_;
+}
+
+void Scene::set_next_body_number(std::uint64_t n) {
+  std::lock_guard lock(write_mu_);
+  next_body_number_ = std::max<std::uint64_t>(1, n);
 }
 
 void Scene::AddProbe(std::shared_ptr<ProbeSlot> slot) {
@@ -157,6 +196,42 @@ grpc::Status SceneRegistry::Create(const std::string& id, const std::string& des
   auto scene = std::make_shared<Scene>(id, description, signal_);
   scenes_.emplace(id, scene);
   if (out) *out = std::move(scene);
+  return grpc::Status::OK;
+}
+
+grpc::Status SceneRegistry::Create(const std::string& id, const std::string& description,
+                                   const v1::SceneConfig& config, std::size_t max_scenes,
+                                   ScenePtr* out, const std::function<grpc::Status()>& hook) {
+  std::lock_guard lock(mu_);
+  if (scenes_.count(id)) {
+    return grpc::Status(grpc::StatusCode::ALREADY_EXISTS, "scene_id: scene '" + id + "' exists");
+  }
+  if (scenes_.size() >= max_scenes) {
+    return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                        "scene_id: the server already hosts " + std::to_string(scenes_.size()) +
+                            " scenes (limit " + std::to_string(max_scenes) + ")");
+  }
+  if (hook) {
+    if (auto s = hook(); !s.ok()) return s;
+  }
+  auto scene = std::make_shared<Scene>(id, description, signal_);
+  scene->set_config(config);
+  scenes_.emplace(id, scene);
+  if (out) *out = std::move(scene);
+  return grpc::Status::OK;
+}
+
+grpc::Status SceneRegistry::Remove(const std::string& id, const std::function<grpc::Status()>& hook,
+                                   ScenePtr* out) {
+  std::lock_guard lock(mu_);
+  auto it = scenes_.find(id);
+  if (it == scenes_.end())
+    return grpc::Status(grpc::StatusCode::NOT_FOUND, "scene_id: no scene '" + id + "'");
+  // Under the scene's writer lock: no body is added to the store after the
+  // scene's rows are gone.
+  if (auto s = it->second->MarkDeleted(hook); !s.ok()) return s;
+  if (out) *out = it->second;
+  scenes_.erase(it);
   return grpc::Status::OK;
 }
 

@@ -12,6 +12,7 @@
 #include <atomic>
 #include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -83,18 +84,38 @@ class Scene {
   /// The current snapshot (never null). Lock-free for readers in practice.
   SnapshotPtr snapshot() const { return snapshot_.load(std::memory_order_acquire); }
 
+  /// What a write hook sees: the change, after every check has passed and
+  /// before it is published, under the scene's writer lock.
+  struct WriteInfo {
+    const BodyState* body = nullptr;  ///< the body added or moved (its new state)
+    std::uint64_t revision = 0;       ///< the revision the change publishes
+    std::uint64_t next_body_number = 1;
+  };
+  /// Makes a change durable (the state store) before it is published; a
+  /// non-OK status drops the change and is the writer's result.
+  using WriteHook = std::function<grpc::Status(const WriteInfo&)>;
+
   /// Adds a body; assigns "body-N" when body.id is empty. ALREADY_EXISTS on a
   /// duplicate id (the message names `id_field`), RESOURCE_EXHAUSTED beyond
   /// `max_bodies`.
   grpc::Status AddBody(BodyState body, std::size_t max_bodies, BodyState* added,
-                       const std::string& id_field);
+                       const std::string& id_field, const WriteHook& hook = {});
   /// NOT_FOUND, FAILED_PRECONDITION (static body) or OK with the new revision.
   grpc::Status MoveBody(const std::string& id, const Pose& X_WB, const Vec3* v_W, const Vec3* w_W,
-                        std::uint64_t* revision);
-  grpc::Status RemoveBody(const std::string& id, std::uint64_t* revision);
+                        std::uint64_t* revision, const WriteHook& hook = {});
+  grpc::Status RemoveBody(const std::string& id, std::uint64_t* revision,
+                          const WriteHook& hook = {});
 
   bool deleted() const { return deleted_.load(std::memory_order_acquire); }
   void MarkDeleted();
+  /// MarkDeleted after `hook` succeeded, under the writer lock (no writer
+  /// runs between them); NOT_FOUND when already deleted.
+  grpc::Status MarkDeleted(const std::function<grpc::Status()>& hook);
+
+  /// The number the next assigned "body-N" id starts from (restored from
+  /// the state store, so that a restart does not hand out old ids again).
+  std::uint64_t next_body_number() const;
+  void set_next_body_number(std::uint64_t n);
 
   /// Notified on every change of this scene (its observer publisher waits on it).
   ChangeSignal& changes() { return changes_; }
@@ -132,7 +153,7 @@ class Scene {
   ChangeSignal* signal_;
   ChangeSignal changes_;
   std::atomic<SnapshotPtr> snapshot_;
-  std::mutex write_mu_;  // serialises writers; never taken by readers
+  mutable std::mutex write_mu_;  // serialises writers; never taken by readers
   std::uint64_t next_body_number_ = 1;
   std::atomic<bool> deleted_{false};
   mutable std::mutex probes_mu_;
@@ -151,9 +172,17 @@ class SceneRegistry {
   /// ALREADY_EXISTS, RESOURCE_EXHAUSTED (more than `max_scenes`) or OK.
   grpc::Status Create(const std::string& id, const std::string& description, std::size_t max_scenes,
                       ScenePtr* out);
+  /// Create with the scene's config, after `hook` (which makes it durable)
+  /// succeeded; nothing is created when it fails.
+  grpc::Status Create(const std::string& id, const std::string& description,
+                      const v1::SceneConfig& config, std::size_t max_scenes, ScenePtr* out,
+                      const std::function<grpc::Status()>& hook);
   ScenePtr Get(const std::string& id) const;
   /// Removes the scene from the registry and marks it deleted; null when absent.
   ScenePtr Remove(const std::string& id);
+  /// Remove after `hook` succeeded (NOT_FOUND when absent); `out` gets the scene.
+  grpc::Status Remove(const std::string& id, const std::function<grpc::Status()>& hook,
+                      ScenePtr* out);
   std::vector<ScenePtr> List() const;
 
   std::uint64_t NextBodyUid() { return next_uid_.fetch_add(1); }

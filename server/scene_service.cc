@@ -16,6 +16,72 @@ grpc::ServerUnaryReactor* Done(grpc::CallbackServerContext* ctx, const grpc::Sta
   return r;
 }
 
+/// A mutation's request id (server/README.md "Idempotent mutations"):
+/// Start claims it (or answers with the first outcome), Put writes the
+/// outcome in the mutation's own transaction, End records it.
+class RequestIdCall {
+ public:
+  RequestIdCall(Core* core, const char* method) : core_(core), method_(method) {}
+
+  /// True: run the request. False: `*result` (and `*resp` when OK) is the
+  /// answer, the first outcome of this id or a malformed id.
+  bool Start(const std::string& client_key, const std::string& request_id,
+             google::protobuf::Message* resp, grpc::Status* result) {
+    if (request_id.empty()) return true;
+    if (auto s = ValidateId(request_id, "request_id"); !s.ok()) {
+      *result = s;
+      return false;
+    }
+    client_ = RequestLog::ClientHash(client_key);
+    id_ = request_id;
+    RequestOutcome first;
+    if (core_->requests->Begin(client_, id_, method_, &first) == RequestLog::Claim::kDone) {
+      *result = Replay(first, resp);
+      return false;
+    }
+    claimed_ = true;
+    return true;
+  }
+
+  /// In a store transaction: the successful outcome, committed with the change.
+  void Put(SceneStore::Txn& t, const google::protobuf::Message& resp) {
+    if (!claimed_) return;
+    t.PutRequest(client_, id_, Outcome(grpc::Status::OK, &resp));
+    durable_ = true;
+  }
+
+  grpc::Status End(const grpc::Status& s, const google::protobuf::Message& resp) {
+    if (claimed_) {
+      core_->requests->Finish(client_, id_, Outcome(s, &resp), durable_ && s.ok());
+      claimed_ = false;
+    }
+    return s;
+  }
+
+  static grpc::Status Replay(const RequestOutcome& o, google::protobuf::Message* resp) {
+    if (o.code != 0) return grpc::Status(static_cast<grpc::StatusCode>(o.code), o.message);
+    if (resp != nullptr) resp->ParseFromString(o.response);
+    return grpc::Status::OK;
+  }
+
+ private:
+  RequestOutcome Outcome(const grpc::Status& s, const google::protobuf::Message* resp) const {
+    RequestOutcome o;
+    o.method = method_;
+    o.code = static_cast<int>(s.error_code());
+    o.message = s.error_message();
+    if (s.ok() && resp != nullptr) o.response = resp->SerializeAsString();
+    o.created_at_s = UnixNow();
+    return o;
+  }
+
+  Core* core_;
+  const char* method_;
+  std::string client_, id_;
+  bool claimed_ = false;
+  bool durable_ = false;
+};
+
 /// Receives a body upload, then builds it on the build queue.
 class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
                              public StoppableCall {
@@ -46,7 +112,12 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
       return;
     }
     grpc::Status s = Take();
+    if (replayed_) {
+      FinishOnceLocked(s);
+      return;
+    }
     if (!s.ok()) {
+      RecordError(s);
       FinishOnceLocked(s);
       return;
     }
@@ -59,6 +130,18 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
       if (have_header_) return InvalidArgument("header", "sent twice (send it first, once)");
       have_header_ = true;
       header_.Swap(req_.mutable_header());
+      if (auto s = core_->tokens.CheckAnyToken(*ctx_); !s.ok()) return s;
+      if (!header_.request_id().empty()) {
+        if (auto s = ValidateId(header_.request_id(), "header.request_id"); !s.ok()) return s;
+        request_id_ok_ = true;
+        // A retry of a finished upload is answered at once, without its bytes.
+        RequestOutcome first;
+        if (core_->requests->Lookup(RequestLog::ClientHash(client_), header_.request_id(),
+                                    "AddBody", &first)) {
+          replayed_ = true;
+          return RequestIdCall::Replay(first, resp_);
+        }
+      }
       ScenePtr scene;
       if (auto s = ResolveScene(core_, *ctx_, header_.scene_id(), Role::kInject, &scene); !s.ok())
         return s;
@@ -107,6 +190,18 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
     return InvalidArgument("part", "empty AddBodyRequest (neither header nor chunk)");
   }
 
+  /// An upload with a valid request id that fails before it is built: a
+  /// retry gets the same error (RequestLog::RecordError keeps only errors of
+  /// the request itself, never transient ones).
+  void RecordError(const grpc::Status& s) {
+    if (!request_id_ok_ || s.ok()) return;
+    RequestOutcome o;
+    o.method = "AddBody";
+    o.code = static_cast<int>(s.error_code());
+    o.message = s.error_message();
+    core_->requests->RecordError(RequestLog::ClientHash(client_), header_.request_id(), o);
+  }
+
   /// The client half-closed: build the body off this thread (under mu_).
   void OnComplete() {
     if (!have_header_) {
@@ -119,9 +214,11 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
     }
     if (header_.mesh_case() == v1::AddBodyHeader::kFormat && header_.total_bytes() > 0 &&
         bytes_.size() != header_.total_bytes()) {
-      FinishOnceLocked(InvalidArgument(
+      const grpc::Status s = InvalidArgument(
           "chunk", std::to_string(bytes_.size()) + " bytes received, header.total_bytes said " +
-                       std::to_string(header_.total_bytes())));
+                       std::to_string(header_.total_bytes()));
+      RecordError(s);
+      FinishOnceLocked(s);
       return;
     }
     submitted_ = true;
@@ -134,6 +231,16 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
 
   void Build() {
     if (core_->before_build) core_->before_build(header_.spec().label());
+    RequestIdCall request(core_, "AddBody");
+    grpc::Status replay;
+    if (!request.Start(client_, header_.request_id(), resp_, &replay)) {
+      FinishBuilt(replay);
+      return;
+    }
+    FinishBuilt(request.End(BuildAndAdd(request), *resp_));
+  }
+
+  grpc::Status BuildAndAdd(RequestIdCall& request) {
     grpc::Status s;
     std::optional<pd::Mesh> mesh;
     const std::size_t max_tris = core_->limits.max_mesh_triangles;
@@ -155,9 +262,19 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
     if (s.ok()) s = MakeBody(core_, header_.spec(), "header.spec", std::move(*mesh), &body);
     if (s.ok() && core_->shutting_down.load()) s = core_->Unavailable();
     BodyState added;
-    if (s.ok())
+    if (s.ok()) {
+      const std::string& scene_id = scene_->id();
       s = scene_->AddBody(std::move(body), core_->limits.max_bodies_per_scene, &added,
-                          "header.spec.body_id");
+                          "header.spec.body_id", [&](const Scene::WriteInfo& w) {
+                            return core_->Commit([&](SceneStore::Txn& t) {
+                              t.PutBody(scene_id, *w.body);
+                              t.SetNextBodyNumber(scene_id, w.next_body_number);
+                              v1::Body answer;
+                              FillBody(*w.body, false, &answer);
+                              request.Put(t, answer);
+                            });
+                          });
+    }
     if (s.ok()) {
       FillBody(added, false, resp_);
       Log()->info("scene '{}': added body '{}' ({} triangles)", scene_->id(), added.id,
@@ -166,6 +283,10 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
       Log()->info("scene '{}': AddBody rejected: {}", wire::Printable(header_.scene_id()),
                   wire::Printable(s.error_message(), wire::kMaxStatusMessage));
     }
+    return s;
+  }
+
+  void FinishBuilt(const grpc::Status& s) {
     {
       std::lock_guard lock(mu_);
       if (finished_) return;
@@ -207,6 +328,8 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
   bool finished_ = false;
   bool submitted_ = false;
   bool have_header_ = false;
+  bool request_id_ok_ = false;  ///< the header carries a well-formed request id
+  bool replayed_ = false;       ///< answered with the first outcome of its request id
   v1::AddBodyRequest req_;
   v1::AddBodyHeader header_;
   std::string bytes_;
@@ -273,28 +396,39 @@ grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerCont
   const ServiceCall call(this);
   if (core_->shutting_down.load()) return Done(ctx, core_->Unavailable());
   if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
-  if (auto s = ValidateId(req->scene_id(), "scene_id"); !s.ok()) return Done(ctx, s);
-  if (req->description().size() > 1024) {
-    return Done(ctx, InvalidArgument("description", "is longer than 1024 bytes"));
-  }
-  if (const std::string e = CheckSceneConfig(req->config(), "config", core_->limits.max_mesh_triangles);
-      !e.empty()) {
-    return Done(ctx, grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, e));
-  }
-  if (auto s = core_->tokens.Check(*ctx, req->scene_id(), Role::kAdmin); !s.ok())
-    return Done(ctx, s);
-  ScenePtr scene;
-  if (auto s = core_->scenes.Create(req->scene_id(), req->description(), core_->limits.max_scenes,
-                                    &scene);
-      !s.ok()) {
-    return Done(ctx, s);
-  }
-  scene->set_config(req->config());
-  resp->set_scene_id(scene->id());
-  resp->set_description(scene->description());
-  *resp->mutable_config() = scene->config();
-  Log()->info("created scene '{}'", scene->id());
-  return Done(ctx, grpc::Status::OK);
+  RequestIdCall request(core_, "CreateScene");
+  grpc::Status replay;
+  if (!request.Start(ClientKey(core_->tokens, *ctx), req->request_id(), resp, &replay))
+    return Done(ctx, replay);
+  auto run = [&]() -> grpc::Status {
+    if (auto s = ValidateId(req->scene_id(), "scene_id"); !s.ok()) return s;
+    if (req->description().size() > 1024) {
+      return InvalidArgument("description", "is longer than 1024 bytes");
+    }
+    if (const std::string e =
+            CheckSceneConfig(req->config(), "config", core_->limits.max_mesh_triangles);
+        !e.empty()) {
+      return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, e);
+    }
+    if (auto s = core_->tokens.Check(*ctx, req->scene_id(), Role::kAdmin); !s.ok()) return s;
+    v1::SceneSummary answer;
+    answer.set_scene_id(req->scene_id());
+    answer.set_description(req->description());
+    *answer.mutable_config() = req->config();
+    ScenePtr scene;
+    auto s = core_->scenes.Create(
+        req->scene_id(), req->description(), req->config(), core_->limits.max_scenes, &scene, [&] {
+          return core_->Commit([&](SceneStore::Txn& t) {
+            t.PutScene(req->scene_id(), req->description(), req->config(), 1);
+            request.Put(t, answer);
+          });
+        });
+    if (!s.ok()) return s;
+    *resp = answer;
+    Log()->info("created scene '{}'", scene->id());
+    return grpc::Status::OK;
+  };
+  return Done(ctx, request.End(run(), *resp));
 }
 
 grpc::ServerUnaryReactor* SceneServiceImpl::ListScenes(grpc::CallbackServerContext* ctx,
@@ -330,19 +464,34 @@ grpc::ServerUnaryReactor* SceneServiceImpl::GetScene(grpc::CallbackServerContext
 
 grpc::ServerUnaryReactor* SceneServiceImpl::DeleteScene(grpc::CallbackServerContext* ctx,
                                                         const v1::DeleteSceneRequest* req,
-                                                        v1::DeleteSceneResponse*) {
+                                                        v1::DeleteSceneResponse* resp) {
   const ServiceCall call(this);
-  ScenePtr scene;
-  if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kAdmin, &scene); !s.ok())
-    return Done(ctx, s);
-  if (!core_->scenes.Remove(req->scene_id())) {
-    return Done(ctx, grpc::Status(grpc::StatusCode::NOT_FOUND,
-                                  "scene_id: no scene '" + req->scene_id() + "'"));
-  }
-  core_->StopCalls(scene.get(), grpc::Status(grpc::StatusCode::NOT_FOUND,
-                                             "scene '" + scene->id() + "' was deleted"));
-  Log()->info("deleted scene '{}'", scene->id());
-  return Done(ctx, grpc::Status::OK);
+  if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
+  RequestIdCall request(core_, "DeleteScene");
+  grpc::Status replay;
+  if (!request.Start(ClientKey(core_->tokens, *ctx), req->request_id(), resp, &replay))
+    return Done(ctx, replay);
+  auto run = [&]() -> grpc::Status {
+    ScenePtr scene;
+    if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kAdmin, &scene); !s.ok())
+      return s;
+    ScenePtr removed;
+    auto s = core_->scenes.Remove(
+        req->scene_id(),
+        [&] {
+          return core_->Commit([&](SceneStore::Txn& t) {
+            t.DeleteScene(req->scene_id());
+            request.Put(t, v1::DeleteSceneResponse());
+          });
+        },
+        &removed);
+    if (!s.ok()) return s;
+    core_->StopCalls(removed.get(), grpc::Status(grpc::StatusCode::NOT_FOUND,
+                                                 "scene '" + removed->id() + "' was deleted"));
+    Log()->info("deleted scene '{}'", removed->id());
+    return grpc::Status::OK;
+  };
+  return Done(ctx, request.End(run(), *resp));
 }
 
 grpc::ServerReadReactor<v1::AddBodyRequest>* SceneServiceImpl::AddBody(
@@ -355,39 +504,73 @@ grpc::ServerUnaryReactor* SceneServiceImpl::MoveBody(grpc::CallbackServerContext
                                                      const v1::MoveBodyRequest* req,
                                                      v1::MoveBodyResponse* resp) {
   const ServiceCall call(this);
-  ScenePtr scene;
-  if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kInject, &scene); !s.ok())
-    return Done(ctx, s);
-  if (auto s = ValidateId(req->body_id(), "body_id"); !s.ok()) return Done(ctx, s);
-  Pose X_WB;
-  if (auto s = FromProto(req->pose(), "pose", &X_WB); !s.ok()) return Done(ctx, s);
-  Vec3 v = Vec3::Zero(), w = Vec3::Zero();
-  if (req->has_velocity()) {
-    // The velocity ranges first (FromProto alone checks finiteness and the
-    // coordinate range).
-    if (auto s = ValidateTwist(req->velocity(), "velocity"); !s.ok()) return Done(ctx, s);
-    (void)FromProto(req->velocity().linear(), "velocity.linear", &v, wire::kLinearVelocity);
-    (void)FromProto(req->velocity().angular(), "velocity.angular", &w, wire::kAngularVelocity);
-  }
-  std::uint64_t rev = 0;
-  if (auto s = scene->MoveBody(req->body_id(), X_WB, &v, &w, &rev); !s.ok()) return Done(ctx, s);
-  resp->set_revision(rev);
-  return Done(ctx, grpc::Status::OK);
+  if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
+  RequestIdCall request(core_, "MoveBody");
+  grpc::Status replay;
+  if (!request.Start(ClientKey(core_->tokens, *ctx), req->request_id(), resp, &replay))
+    return Done(ctx, replay);
+  auto run = [&]() -> grpc::Status {
+    ScenePtr scene;
+    if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kInject, &scene); !s.ok())
+      return s;
+    if (auto s = ValidateId(req->body_id(), "body_id"); !s.ok()) return s;
+    Pose X_WB;
+    if (auto s = FromProto(req->pose(), "pose", &X_WB); !s.ok()) return s;
+    Vec3 v = Vec3::Zero(), w = Vec3::Zero();
+    if (req->has_velocity()) {
+      // The velocity ranges first (FromProto alone checks finiteness and the
+      // coordinate range).
+      if (auto s = ValidateTwist(req->velocity(), "velocity"); !s.ok()) return s;
+      (void)FromProto(req->velocity().linear(), "velocity.linear", &v, wire::kLinearVelocity);
+      (void)FromProto(req->velocity().angular(), "velocity.angular", &w, wire::kAngularVelocity);
+    }
+    std::uint64_t rev = 0;
+    // The pose goes into the next batch of the store (at most 100 ms later):
+    // only a moving body's latest pose matters.
+    SceneStore* store = core_->store.get();
+    auto s = scene->MoveBody(req->body_id(), X_WB, &v, &w, &rev, [&](const Scene::WriteInfo& info) {
+      if (store) {
+        store->QueuePose(scene->id(), info.body->id, info.body->X_WB, info.body->v_W,
+                         info.body->w_W);
+      }
+      return grpc::Status::OK;
+    });
+    if (!s.ok()) return s;
+    resp->set_revision(rev);
+    return grpc::Status::OK;
+  };
+  return Done(ctx, request.End(run(), *resp));
 }
 
 grpc::ServerUnaryReactor* SceneServiceImpl::RemoveBody(grpc::CallbackServerContext* ctx,
                                                        const v1::RemoveBodyRequest* req,
                                                        v1::RemoveBodyResponse* resp) {
   const ServiceCall call(this);
-  ScenePtr scene;
-  if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kInject, &scene); !s.ok())
-    return Done(ctx, s);
-  if (auto s = ValidateId(req->body_id(), "body_id"); !s.ok()) return Done(ctx, s);
-  std::uint64_t rev = 0;
-  if (auto s = scene->RemoveBody(req->body_id(), &rev); !s.ok()) return Done(ctx, s);
-  resp->set_revision(rev);
-  Log()->info("scene '{}': removed body '{}'", scene->id(), req->body_id());
-  return Done(ctx, grpc::Status::OK);
+  if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
+  RequestIdCall request(core_, "RemoveBody");
+  grpc::Status replay;
+  if (!request.Start(ClientKey(core_->tokens, *ctx), req->request_id(), resp, &replay))
+    return Done(ctx, replay);
+  auto run = [&]() -> grpc::Status {
+    ScenePtr scene;
+    if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kInject, &scene); !s.ok())
+      return s;
+    if (auto s = ValidateId(req->body_id(), "body_id"); !s.ok()) return s;
+    std::uint64_t rev = 0;
+    auto s = scene->RemoveBody(req->body_id(), &rev, [&](const Scene::WriteInfo& info) {
+      return core_->Commit([&](SceneStore::Txn& t) {
+        t.DeleteBody(scene->id(), req->body_id());
+        v1::RemoveBodyResponse answer;
+        answer.set_revision(info.revision);
+        request.Put(t, answer);
+      });
+    });
+    if (!s.ok()) return s;
+    resp->set_revision(rev);
+    Log()->info("scene '{}': removed body '{}'", scene->id(), req->body_id());
+    return grpc::Status::OK;
+  };
+  return Done(ctx, request.End(run(), *resp));
 }
 
 grpc::ServerWriteReactor<v1::SceneEvent>* SceneServiceImpl::Watch(grpc::CallbackServerContext* ctx,

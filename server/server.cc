@@ -5,8 +5,11 @@
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
 
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <set>
 #include <sstream>
 
 #include "server/convert.h"
@@ -14,6 +17,7 @@
 #include "server/observers.h"
 #include "server/scene_file.h"
 #include "server/services.h"
+#include "server/store.h"
 
 namespace hapticpd::server {
 
@@ -58,6 +62,16 @@ const char* StatusCodeName(int code) {
     default:
       return "UNKNOWN";
   }
+}
+
+std::string DefaultStateDir() {
+  if (const char* x = std::getenv("XDG_STATE_HOME"); x != nullptr && x[0] == '/') {
+    return (std::filesystem::path(x) / "hapticpd").string();
+  }
+  if (const char* h = std::getenv("HOME"); h != nullptr && h[0] != 0) {
+    return (std::filesystem::path(h) / ".local" / "state" / "hapticpd").string();
+  }
+  return "";
 }
 
 namespace {
@@ -107,13 +121,82 @@ struct HapticServer::Impl {
   bool shutting = false;
   std::thread status_thread;
 
-  void LoadSceneFile(const std::string& path);
+  void LoadSceneFile(const std::string& path, const std::set<std::string>& restored);
+  std::set<std::string> RestoreState();
+  void CommitScenes(const std::set<std::string>& restored);
   void StatusLoop();
 };
 
-void HapticServer::Impl::LoadSceneFile(const std::string& path) {
+std::set<std::string> HapticServer::Impl::RestoreState() {
+  using Clock = std::chrono::steady_clock;
+  const auto t0 = Clock::now();
+  core.store = SceneStore::Open(options.state_dir, options.state_max_bytes);
+  core.store->before_commit = options.store_before_commit;
+  StoredState st = core.store->Load(UnixNow() - std::chrono::seconds(RequestLog::kTtl).count());
+  std::set<std::string> restored;
+  std::size_t bodies = 0;
+  const std::string file = core.store->db_path().string();
+  for (StoredScene& sc : st.scenes) {
+    ScenePtr scene;
+    // The store wins over today's limits: what was acknowledged is served.
+    auto s = core.scenes.Create(sc.id, sc.description, sc.config,
+                                std::numeric_limits<std::size_t>::max(), &scene, {});
+    if (!s.ok()) throw StoreError(file + ": scene '" + sc.id + "': " + s.error_message());
+    for (StoredBody& b : sc.bodies) {
+      BodyState body;
+      body.uid = core.scenes.NextBodyUid();
+      body.id = b.id;
+      body.label = b.label;
+      body.X_WB = b.X_WB;
+      body.v_W = b.v_W;
+      body.w_W = b.w_W;
+      body.material = b.material;
+      body.movable = b.movable;
+      try {
+        body.model = pd::MakeModel(
+            pd::Mesh::FromArrays(std::move(b.vertices), std::move(b.triangles), b.id));
+      } catch (const pd::MeshError& e) {
+        throw StoreError(file + ": the database is corrupt (body '" + b.id + "' of scene '" +
+                         sc.id + "': " + e.what() + ")");
+      }
+      s = scene->AddBody(std::move(body), std::numeric_limits<std::size_t>::max(), nullptr, "id");
+      if (!s.ok()) throw StoreError(file + ": scene '" + sc.id + "': " + s.error_message());
+      ++bodies;
+    }
+    scene->set_next_body_number(sc.next_body_number);
+    restored.insert(sc.id);
+  }
+  core.requests = std::make_unique<RequestLog>(core.store.get());
+  core.requests->Load(st.requests);
+  Log()->info("state directory {}: {} scenes, {} bodies, {} request ids loaded in {:.0f} ms",
+              options.state_dir, st.scenes.size(), bodies, st.requests.size(),
+              std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+  return restored;
+}
+
+void HapticServer::Impl::CommitScenes(const std::set<std::string>& restored) {
+  if (!core.store) return;
+  // The scenes of scene files and "default", in one transaction: a crash
+  // during start-up leaves none of them half-written.
+  const grpc::Status s = core.store->Write([&](SceneStore::Txn& t) {
+    for (const ScenePtr& scene : core.scenes.List()) {
+      if (restored.count(scene->id())) continue;
+      t.PutScene(scene->id(), scene->description(), scene->config(), scene->next_body_number());
+      for (const BodyState& b : scene->snapshot()->bodies) t.PutBody(scene->id(), b);
+    }
+  });
+  if (!s.ok()) throw StoreError(s.error_message());
+}
+
+void HapticServer::Impl::LoadSceneFile(const std::string& path,
+                                       const std::set<std::string>& restored) {
   // Throws "FILE: KEY: problem".
   const SceneFile f = ParseSceneFile(path, core.limits.max_mesh_triangles);
+  if (restored.count(f.scene_id)) {
+    Log()->info("scene '{}' of {} not loaded: the state directory holds that scene", f.scene_id,
+                path);
+    return;
+  }
   try {
     const std::string& id = f.scene_id;
     if (auto s = ValidateId(id, "scene"); !s.ok()) throw std::runtime_error(s.error_message());
@@ -197,12 +280,21 @@ void HapticServer::Start() {
   if (o.tls_cert.empty() != o.tls_key.empty()) {
     throw std::runtime_error("TLS needs both --tls-cert and --tls-key");
   }
-  for (const auto& f : o.scene_files) m.LoadSceneFile(f);
-  if (o.scene_files.empty()) {
+  // The store first: it wins over scene files, and "default" is created only
+  // when it holds no scene. The port is bound only once it is loaded.
+  std::set<std::string> restored;
+  if (!o.state_dir.empty()) {
+    restored = m.RestoreState();
+  } else {
+    m.core.requests = std::make_unique<RequestLog>(nullptr);
+  }
+  for (const auto& f : o.scene_files) m.LoadSceneFile(f, restored);
+  if (o.scene_files.empty() && restored.empty()) {
     auto s =
         m.core.scenes.Create("default", "the default scene", m.core.limits.max_scenes, nullptr);
     if (!s.ok()) throw std::runtime_error(s.error_message());
   }
+  m.CommitScenes(restored);
 
   m.core.before_build = o.before_build;
   m.publishers = std::make_unique<internal::ObserverPublishers>();
@@ -316,6 +408,9 @@ void HapticServer::Shutdown() {
   internal::GrpcTakeOver(internal::ServiceDoneKey(m.haptic_service.get()));
   m.publishers->Stop();
   if (m.status_thread.joinable()) m.status_thread.join();
+  // Writes the queued poses and lets go of the state directory.
+  m.core.requests.reset();
+  m.core.store.reset();
   {
     std::lock_guard lock(m.mu);
     m.shut_down = true;

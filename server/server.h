@@ -9,6 +9,7 @@
 
 #include <grpcpp/channel.h>
 
+#include <cstdint>
 #include <functional>
 #include <memory>
 #include <string>
@@ -67,6 +68,18 @@ struct ServerOptions {
   /// named "default" is created.
   std::vector<std::string> scene_files;
   Limits limits;
+  /// State directory (server/README.md "State directory"): scenes, bodies,
+  /// poses, materials, configs and request ids are kept in DIR/scenes.db and
+  /// served again after a restart. Empty (the default here, so that servers
+  /// inside other programs and tests never write to disk): memory only.
+  /// `hapticpd serve` defaults to DefaultStateDir().
+  std::string state_dir;
+  /// > 0: the database may grow to about this many bytes; beyond it a
+  /// mutation fails as on a full disk (UNAVAILABLE), nothing changes.
+  std::int64_t state_max_bytes = 0;
+  /// Tests only: called before each commit to the state store; a non-zero
+  /// SQLite result code makes the commit fail as that error would.
+  std::function<int()> store_before_commit;
   /// Seconds between one-line status logs; <= 0 disables them.
   double status_interval_s = 10;
   /// Seconds streams get to finish at shutdown before they are cancelled.
@@ -117,8 +130,8 @@ class HapticServer {
     std::uint64_t updates_sent = 0;
     std::uint64_t observer_frames_sent = 0;
     std::uint64_t observer_frames_dropped = 0;
-    std::uint64_t pd_calls = 0;        ///< PD queries run by device sessions
-    std::uint64_t torque_skipped = 0;  ///< answers without torque (scene declares none)
+    std::uint64_t pd_calls = 0;             ///< PD queries run by device sessions
+    std::uint64_t torque_skipped = 0;       ///< answers without torque (scene declares none)
     std::uint64_t updates_withheld = 0;     ///< answers sent as CONTACT_STATUS_WITHHELD
     std::uint64_t sessions_idle_ended = 0;  ///< device sessions ended by the idle timeout
     std::uint64_t observers_stalled = 0;    ///< observers cancelled for a write stuck that long
@@ -133,5 +146,10 @@ class HapticServer {
 
 /// One-line text for a status code, e.g. "INVALID_ARGUMENT".
 const char* StatusCodeName(int code);
+
+/// `hapticpd serve`'s state directory when --state is not given:
+/// $XDG_STATE_HOME/hapticpd, else $HOME/.local/state/hapticpd (empty when
+/// neither variable is set).
+std::string DefaultStateDir();
 
 }  // namespace hapticpd::server

@@ -173,7 +173,7 @@ class Parser {
 
   SceneFileBody ParseBody(const Json& b, const std::string& key) {
     RequireObject(b, key);
-    OnlyKeys(b, key, {"id", "label", "mesh", "shape", "pose", "material", "movable"});
+    OnlyKeys(b, key, {"id", "label", "mesh", "shape", "pose", "material", "movable", "velocity"});
     SceneFileBody out;
     if (b.contains("mesh") == b.contains("shape")) {
       Fail(key, "give exactly one of \"mesh\" (a file) or \"shape\"");
@@ -190,6 +190,24 @@ class Parser {
                                         : out.shape);
     if (b.contains("movable")) spec.set_movable(Bool(b["movable"], key + ".movable"));
     if (b.contains("pose")) *spec.mutable_pose() = ParsePose(b["pose"], key + ".pose");
+    if (b.contains("velocity")) {
+      // Informational, as over the wire (BodySpec.velocity); kept by
+      // `scene export` / `scene import`.
+      const Json& v = b["velocity"];
+      const std::string vk = key + ".velocity";
+      RequireObject(v, vk);
+      OnlyKeys(v, vk, {"linear", "angular"});
+      auto set = [&](const char* name, const Range& range, v1::Vec3* out) {
+        if (!v.contains(name)) return;
+        const auto a = Numbers<3>(v[name], vk + "." + name, "[x, y, z]", &range);
+        out->set_x(a[0]);
+        out->set_y(a[1]);
+        out->set_z(a[2]);
+      };
+      auto* t = spec.mutable_velocity();
+      set("linear", kLinearVelocity, t->mutable_linear());
+      set("angular", kAngularVelocity, t->mutable_angular());
+    }
     // Absent: the server's default material.
     if (b.contains("material")) {
       *spec.mutable_material() = ParseMaterial(b["material"], key + ".material");

@@ -9,7 +9,8 @@
 //                "pose": {"position": [x, y, z], "orientation": [w, x, y, z]},
 //                "material": {"stiffness": K, "rotational_stiffness": XI, "damping": B,
 //                             "static_friction": MU_S, "dynamic_friction": MU_D},
-//                "movable": BOOL}]}
+//                "movable": BOOL,
+//                "velocity": {"linear": [x, y, z], "angular": [x, y, z]}}]}
 //
 // Every key is optional except a body's mesh or shape. Unknown keys, wrong
 // types and invalid values (a number outside its range of ranges.h, a
@@ -37,7 +38,7 @@ class SceneFileError : public std::runtime_error {
 };
 
 struct SceneFileBody {
-  v1::BodySpec spec;      ///< id, label, pose, material, movable
+  v1::BodySpec spec;      ///< id, label, pose, material, movable, velocity
   std::string mesh_path;  ///< resolved mesh file (empty for a shape)
   std::string shape;      ///< procedural shape spec (empty for a mesh)
 };

@@ -18,6 +18,9 @@
 #include <string>
 #include <thread>
 
+#include <grpcpp/grpcpp.h>
+
+#include "hapticpd/v1/scene.grpc.pb.h"
 #include "tests/test_util.h"
 
 namespace hapticpd::testing {
@@ -44,8 +47,8 @@ class ServeProcess {
            ("hapticpd_e2e_" + std::to_string(::getpid()) + "_" + std::to_string(counter_++));
     fs::create_directories(dir_);
     log_ = dir_ / "serve.log";
-    std::vector<std::string> args = {HAPTICPD_CLI_PATH,   "serve", "--listen", "127.0.0.1:0",
-                                     "--status-interval", "0.2"};
+    std::vector<std::string> args = {HAPTICPD_CLI_PATH,   "serve", "--listen",   "127.0.0.1:0",
+                                     "--status-interval", "0.2",   "--ephemeral"};
     args.insert(args.end(), extra.begin(), extra.end());
     pid_ = ::fork();
     if (pid_ == 0) {
@@ -226,10 +229,76 @@ TEST(ServeE2eTest, TokensAndBadStartOptions) {
     EXPECT_NE(r.err.find("PERMISSION_DENIED"), std::string::npos) << r.err;
     EXPECT_EQ(srv.Stop(SIGTERM), 0);
   }
-  RunResult r = Cli("serve --listen 0.0.0.0:0", probe.dir());
+  RunResult r = Cli("serve --ephemeral --listen 0.0.0.0:0", probe.dir());
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(r.err.find("loopback"), std::string::npos) << r.err;
   probe.Stop(SIGTERM);
+}
+
+/// GetScene with meshes, revision cleared and each orientation checked
+/// against `other`'s within 1e-12, then copied from it (a quaternion goes
+/// through a rotation matrix on the way).
+v1::Scene SceneFor(const std::string& addr, const std::string& id) {
+  auto stub =
+      v1::SceneService::NewStub(grpc::CreateChannel(addr, grpc::InsecureChannelCredentials()));
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+  v1::GetSceneRequest req;
+  req.set_scene_id(id);
+  req.set_include_meshes(true);
+  v1::Scene sc;
+  EXPECT_TRUE(stub->GetScene(&ctx, req, &sc).ok());
+  sc.clear_revision();
+  return sc;
+}
+
+// `scene export` then `scene import` into another server: the scene comes
+// back with everything (config, ids, labels, poses, velocities, materials,
+// movable flags, meshes to the last bit).
+TEST(ServeE2eTest, SceneExportThenImportLosesNothing) {
+  ServeProcess a({}), b({});
+  const std::string addr_a = a.WaitAddress(), addr_b = b.WaitAddress();
+  ASSERT_FALSE(addr_a.empty());
+  ASSERT_FALSE(addr_b.empty());
+  const fs::path file = a.dir() / "lab.json";
+  std::ofstream(file) << R"({"scene": "lab", "description": "a lab", "mode": "pdg",
+    "effects": ["contact", "friction", "texture"], "gravity": [0, 0.5, -3],
+    "texture": {"amplitude": 0.5, "frequency": 100},
+    "probe": {"shape": "sphere:0.01", "mass": 0.2, "inertia": 0.001},
+    "bodies": [{"id": "cup", "shape": "cup:1", "label": "the cup", "movable": true,
+      "pose": {"position": [0.1, 0.2, 0.3], "orientation": [0.6, 0.8, 0, 0]},
+      "material": {"stiffness": 1234.5, "rotational_stiffness": 0.25, "damping": 3,
+                   "static_friction": 0.7, "dynamic_friction": 0.3},
+      "velocity": {"linear": [0.1, 0, 0], "angular": [0, 0, 1]}}]})";
+  std::ofstream(a.dir() / "tet.obj") << "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
+                                        "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+  const std::string s = " --server " + addr_a + " --timeout 30";
+  for (const std::string& cmd :
+       {"scene load " + file.string() + s,
+        "inject --scene lab --mesh " + (a.dir() / "tet.obj").string() +
+            " --id tet --velocity 0.1,0.2,0.3,1,2,3 --stiffness 500 --movable --label mesh" + s,
+        "inject --scene lab --shape sphere:0.0123456789,2 --id ball --pose 1e-3,2e-3,3e-3" + s,
+        "move --scene lab --body cup --pose 0.5,0.25,0.125,0.28,0.96,0,0 --velocity 1,2,3" + s,
+        "scene export lab " + (a.dir() / "out").string() + s,
+        "scene import " + (a.dir() / "out").string() + " --server " + addr_b}) {
+    const RunResult r = Cli(cmd, a.dir());
+    ASSERT_EQ(r.exit_code, 0) << cmd << "\n" << r.err;
+  }
+  v1::Scene from = SceneFor(addr_a, "lab"), to = SceneFor(addr_b, "lab");
+  ASSERT_EQ(from.bodies_size(), 3);
+  ASSERT_EQ(to.bodies_size(), 3);
+  for (int i = 0; i < 3; ++i) {
+    const auto& q = from.bodies(i).pose().orientation();
+    auto* r = to.mutable_bodies(i)->mutable_pose()->mutable_orientation();
+    EXPECT_NEAR(r->w(), q.w(), 1e-12);
+    EXPECT_NEAR(r->x(), q.x(), 1e-12);
+    EXPECT_NEAR(r->y(), q.y(), 1e-12);
+    EXPECT_NEAR(r->z(), q.z(), 1e-12);
+    *r = q;
+  }
+  EXPECT_EQ(to.DebugString(), from.DebugString());
+  EXPECT_EQ(a.Stop(SIGTERM), 0);
+  EXPECT_EQ(b.Stop(SIGTERM), 0);
 }
 
 }  // namespace
