@@ -127,7 +127,9 @@ void ServoLoop::Tick(std::int64_t now_ns) {
   effects_.Apply(EffectInput{&eval_.current(), r.W_ir, K_ir, proxy_.X_WP, proxy_.v_W, proxy_.w_W,
                              1e-9 * static_cast<double>(now_ns)},
                  &r.W_effects, &K_fx);
-  r.contact_weight = ContactWeight(r.ir.max_depth, config_.free_space_margin_m);
+  r.contact_weight = config_.free_space_follows_handle
+                         ? ContactWeight(r.ir.max_depth, config_.free_space_margin_m)
+                         : 1.0;
   StepProxy(coupling_, r.X_WH, v_WH, w_WH, r.W_effects, K_fx, h, &proxy_, r.contact_weight);
   // An IR no valid answer produces (numbers that overflow on their way,
   // from a broken or foreign server) must not leave the proxy non-finite

@@ -69,6 +69,9 @@ struct ServoConfig {
   /// proxy damps against the world; farther out, against the handle, so
   /// free motion is not dragged (coupling.h, ContactWeight).
   double free_space_margin_m = 1e-3;
+  /// False: the proxy damps against the world everywhere (free motion is
+  /// dragged by that damping, as before the margin existed).
+  bool free_space_follows_handle = true;
   Pose X_WD;  ///< device base frame in the world
   Pose X_PA;  ///< probe mesh frame A in the proxy frame P (P: at the probe's centre of mass)
   /// Real-time runner: spin this long before each deadline (after sleeping).

@@ -85,10 +85,13 @@ TEST(DeviceE2e, ThinPlateForceNeverFlipsInside) {
                         << min_fz_inside;
   EXPECT_GT(max_fz, 1.0);
   // Never pulls the hand down (through) while it is inside or under the
-  // plate: the proxy stays on the top side, so the push is always up. (The
-  // coupling damper may tug by at most b v as the hand turns back up; 1 mN
-  // is far under that bound's typical size and under anything felt.)
-  EXPECT_GT(min_fz_inside, -1e-3) << late_window.late_ticks() << " ticks delayed by over 3 ms";
+  // plate: the proxy stays on the top side, so the push is always up. As the
+  // hand rises out of the plate the proxy follows it freely (no drag: free
+  // space feels free), so the force there is zero give or take the coupling
+  // damper's tug after a delayed tick: a few mN under TSan. 10 mN is under
+  // anything a hand feels and a fifth of the free-space bound; a proxy
+  // pulled through pulls by hundreds of mN.
+  EXPECT_GT(min_fz_inside, -1e-2) << late_window.late_ticks() << " ticks delayed by over 3 ms";
   EXPECT_GT(inside - settling, inside / 10)
       << "too many delayed ticks for the check to mean much (" << late_window.late_ticks() << ")";
   // The contact itself pushes the proxy up (+z) or not at all, on every tick.
