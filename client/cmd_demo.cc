@@ -416,15 +416,7 @@ void RegisterDemo(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--duration", o->duration, "Seconds per mode")->capture_default_str();
   cmd->add_option("--out", o->out, "Folder for trace.csv and force.svg")->capture_default_str();
-  cmd->add_option("--delay", o->link.delay_ms,
-                  "Emulate a wide-area link: one-way delay (ms, each direction, 0 to 10000)")
-      ->capture_default_str();
-  cmd->add_option("--jitter", o->link.jitter_ms,
-                  "Emulated link: uniform +-jitter on the delay (ms, at most --delay)")
-      ->capture_default_str();
-  cmd->add_option("--loss", o->link.loss,
-                  "Emulated link: fraction of pose and update messages lost, in [0, 1)")
-      ->capture_default_str();
+  AddLinkOptions(cmd, &o->link);
   cmd->callback([o] { RunDemo(*o); });
 }
 

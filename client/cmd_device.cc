@@ -307,16 +307,20 @@ void RegisterDevice(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--record", o->record, "Write the device trajectory to this CSV");
   cmd->add_flag("--json", o->json, "Print the statistics as one JSON object");
-  cmd->add_option("--delay", o->link.delay_ms,
+  AddLinkOptions(cmd, &o->link);
+  cmd->callback([o] { RunDevice(*o); });
+}
+
+void AddLinkOptions(CLI::App* cmd, client::LinkOptions* link) {
+  cmd->add_option("--delay", link->delay_ms,
                   "Emulate a wide-area link: one-way delay (ms, each direction, 0 to 10000)")
       ->capture_default_str();
-  cmd->add_option("--jitter", o->link.jitter_ms,
+  cmd->add_option("--jitter", link->jitter_ms,
                   "Emulated link: uniform +-jitter on the delay (ms, at most --delay)")
       ->capture_default_str();
-  cmd->add_option("--loss", o->link.loss,
+  cmd->add_option("--loss", link->loss,
                   "Emulated link: fraction of pose and update messages lost, in [0, 1)")
       ->capture_default_str();
-  cmd->callback([o] { RunDevice(*o); });
 }
 
 }  // namespace hapticpd::cli

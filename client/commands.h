@@ -4,6 +4,8 @@
 
 #include <CLI/CLI.hpp>
 
+#include "client/link_emulator.h"
+
 namespace hapticpd::cli {
 
 void RegisterVersion(CLI::App& app);
@@ -17,6 +19,10 @@ void RegisterDemo(CLI::App& app);    // demo: server + scene + simulated device 
 void RegisterBench(CLI::App& app);   // bench table1|accuracy|peers
 /// observe: a scene's Watch stream, one summary line a second (or JSON).
 void RegisterObserve(CLI::App& app);
+
+/// --delay, --jitter, --loss (the emulated wide-area link of `device` and
+/// `demo`) into `link`; checked by client::LinkOptionsProblem when run.
+void AddLinkOptions(CLI::App* cmd, client::LinkOptions* link);
 
 /// Thrown by a command to exit non-zero with a one-line reason on stderr.
 struct CommandError : std::runtime_error {
