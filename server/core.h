@@ -162,6 +162,9 @@ struct Core {
   std::function<void(const std::string& label)> before_build;
   ObserverPublishers* publishers = nullptr;
   std::atomic<bool> shutting_down{false};
+  /// The state store and scene files are being loaded (the port is bound and
+  /// health answers NOT_SERVING): every call is refused with UNAVAILABLE.
+  std::atomic<bool> loading{false};
   std::atomic<int> sessions{0};
   std::atomic<int> observers{0};
 
@@ -183,6 +186,16 @@ struct Core {
 
   grpc::Status Unavailable() const {
     return grpc::Status(grpc::StatusCode::UNAVAILABLE, "server is shutting down");
+  }
+  /// UNAVAILABLE while loading or shutting down, else OK: the first check
+  /// of every call.
+  grpc::Status Gate() const {
+    if (loading.load()) {
+      return grpc::Status(grpc::StatusCode::UNAVAILABLE,
+                          "server is loading its state (health: NOT_SERVING); retry shortly");
+    }
+    if (shutting_down.load()) return Unavailable();
+    return grpc::Status::OK;
   }
 
  private:

@@ -89,8 +89,8 @@ class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
   AddBodyReactor(Core* core, grpc::CallbackServerContext* ctx, v1::Body* resp)
       : core_(core), ctx_(ctx), resp_(resp), client_(ClientKey(core->tokens, *ctx)) {
     core_->Register(this);
-    if (core_->shutting_down.load()) {
-      FinishOnce(core_->Unavailable());
+    if (auto s = core_->Gate(); !s.ok()) {
+      FinishOnce(s);
       return;
     }
     GrpcStart(this, [&] { StartRead(&req_); });
@@ -394,7 +394,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerCont
                                                         const v1::CreateSceneRequest* req,
                                                         v1::SceneSummary* resp) {
   const ServiceCall call(this);
-  if (core_->shutting_down.load()) return Done(ctx, core_->Unavailable());
+  if (auto s = core_->Gate(); !s.ok()) return Done(ctx, s);
   if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
   RequestIdCall request(core_, "CreateScene");
   grpc::Status replay;
@@ -435,6 +435,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::ListScenes(grpc::CallbackServerConte
                                                        const v1::ListScenesRequest*,
                                                        v1::ListScenesResponse* resp) {
   const ServiceCall call(this);
+  if (auto s = core_->Gate(); !s.ok()) return Done(ctx, s);
   if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
   for (const ScenePtr& s : core_->scenes.List()) {
     if (!core_->tokens.CanSee(*ctx, s->id())) continue;
@@ -455,6 +456,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::GetScene(grpc::CallbackServerContext
                                                      const v1::GetSceneRequest* req,
                                                      v1::Scene* resp) {
   const ServiceCall call(this);
+  if (auto s = core_->Gate(); !s.ok()) return Done(ctx, s);
   ScenePtr scene;
   if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kObserve, &scene); !s.ok())
     return Done(ctx, s);
@@ -466,6 +468,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::DeleteScene(grpc::CallbackServerCont
                                                         const v1::DeleteSceneRequest* req,
                                                         v1::DeleteSceneResponse* resp) {
   const ServiceCall call(this);
+  if (auto s = core_->Gate(); !s.ok()) return Done(ctx, s);
   if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
   RequestIdCall request(core_, "DeleteScene");
   grpc::Status replay;
@@ -504,6 +507,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::MoveBody(grpc::CallbackServerContext
                                                      const v1::MoveBodyRequest* req,
                                                      v1::MoveBodyResponse* resp) {
   const ServiceCall call(this);
+  if (auto s = core_->Gate(); !s.ok()) return Done(ctx, s);
   if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
   RequestIdCall request(core_, "MoveBody");
   grpc::Status replay;
@@ -546,6 +550,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::RemoveBody(grpc::CallbackServerConte
                                                        const v1::RemoveBodyRequest* req,
                                                        v1::RemoveBodyResponse* resp) {
   const ServiceCall call(this);
+  if (auto s = core_->Gate(); !s.ok()) return Done(ctx, s);
   if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
   RequestIdCall request(core_, "RemoveBody");
   grpc::Status replay;
@@ -585,7 +590,7 @@ grpc::ServerWriteReactor<v1::SceneEvent>* SceneServiceImpl::Watch(grpc::Callback
       delete this;
     }
   };
-  if (core_->shutting_down.load()) return new Reject(core_->Unavailable());
+  if (auto s = core_->Gate(); !s.ok()) return new Reject(s);
   ScenePtr scene;
   if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kObserve, &scene); !s.ok())
     return new Reject(s);

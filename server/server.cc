@@ -280,22 +280,9 @@ void HapticServer::Start() {
   if (o.tls_cert.empty() != o.tls_key.empty()) {
     throw std::runtime_error("TLS needs both --tls-cert and --tls-key");
   }
-  // The store first: it wins over scene files, and "default" is created only
-  // when it holds no scene. The port is bound only once it is loaded.
-  std::set<std::string> restored;
-  if (!o.state_dir.empty()) {
-    restored = m.RestoreState();
-  } else {
-    m.core.requests = std::make_unique<RequestLog>(nullptr);
-  }
-  for (const auto& f : o.scene_files) m.LoadSceneFile(f, restored);
-  if (o.scene_files.empty() && restored.empty()) {
-    auto s =
-        m.core.scenes.Create("default", "the default scene", m.core.limits.max_scenes, nullptr);
-    if (!s.ok()) throw std::runtime_error(s.error_message());
-  }
-  m.CommitScenes(restored);
-
+  // Bound before the state is loaded, so that health checks see
+  // NOT_SERVING (and every call UNAVAILABLE) until it is.
+  m.core.loading.store(true);
   m.core.before_build = o.before_build;
   m.publishers = std::make_unique<internal::ObserverPublishers>();
   m.core.publishers = m.publishers.get();
@@ -346,6 +333,35 @@ void HapticServer::Start() {
     throw std::runtime_error("cannot listen on " + o.listen +
                              " (address in use or invalid HOST:PORT?)");
   }
+  SetServing(m.server.get(), false);
+  try {
+    if (o.while_loading) o.while_loading(m.port);
+    // The store first: it wins over scene files, and "default" is created
+    // only when it holds no scene.
+    std::set<std::string> restored;
+    if (!o.state_dir.empty()) {
+      restored = m.RestoreState();
+    } else {
+      m.core.requests = std::make_unique<RequestLog>(nullptr);
+    }
+    for (const auto& f : o.scene_files) m.LoadSceneFile(f, restored);
+    if (o.scene_files.empty() && restored.empty()) {
+      auto s =
+          m.core.scenes.Create("default", "the default scene", m.core.limits.max_scenes, nullptr);
+      if (!s.ok()) throw std::runtime_error(s.error_message());
+    }
+    m.CommitScenes(restored);
+  } catch (...) {
+    // Nothing was served: end the calls refused meanwhile and stop.
+    m.server->Shutdown(std::chrono::system_clock::now());
+    m.server->Wait();
+    internal::GrpcTakeOver(internal::ServiceDoneKey(m.scene_service.get()));
+    internal::GrpcTakeOver(internal::ServiceDoneKey(m.haptic_service.get()));
+    m.core.builds.Stop();
+    m.publishers->Stop();
+    throw;
+  }
+  m.core.loading.store(false);
   SetServing(m.server.get(), true);
   {
     std::lock_guard lock(m.mu);

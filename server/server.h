@@ -87,6 +87,10 @@ struct ServerOptions {
   /// Tests only: called on a build thread before each AddBody build, with
   /// the body's label (lets a test order builds without timing).
   std::function<void(const std::string& label)> before_build;
+  /// Tests only: called by Start once the port is bound, before the state
+  /// store and scene files are loaded (health NOT_SERVING, calls refused),
+  /// with the bound port (0 in-process).
+  std::function<void(int port)> while_loading;
 
   /// A server inside another program (the demo, benchmarks): loopback on a
   /// free port, no periodic status line, a short shutdown grace.

@@ -31,8 +31,8 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
         session_id_(fmt::format("s{}", NextSessionNumber())),
         worker_pd_(core->limits, session_id_) {
     core_->Register(this);
-    if (core_->shutting_down.load()) {
-      Stop(core_->Unavailable());
+    if (auto s = core_->Gate(); !s.ok()) {
+      Stop(s);
     } else if (auto s = core_->tokens.CheckAnyToken(*ctx_); !s.ok()) {
       Stop(s);
     } else if (core_->sessions.fetch_add(1) >= core_->limits.max_sessions) {

@@ -104,6 +104,36 @@ TEST_P(LifecycleTest, HealthAndReflection) {
   EXPECT_NE(listing.find("hapticpd.v1.HapticService"), std::string::npos);
 }
 
+TEST(Lifecycle, HealthIsNotServingAndCallsAreRefusedUntilTheStateIsLoaded) {
+  int health_while_loading = -5;
+  grpc::Status list_while_loading;
+  int checked_port = 0;
+  server::ServerOptions opt;
+  opt.listen = "127.0.0.1:0";
+  opt.status_interval_s = 0;
+  opt.while_loading = [&](int port) {
+    checked_port = port;
+    auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(port),
+                                       grpc::InsecureChannelCredentials());
+    health_while_loading = HealthStatus(channel);
+    auto stub = v1::SceneService::NewStub(channel);
+    v1::ListScenesResponse list;
+    auto ctx = Ctx();
+    list_while_loading = stub->ListScenes(ctx.get(), {}, &list);
+  };
+  server::HapticServer srv(opt);
+  srv.Start();
+  ASSERT_GT(checked_port, 0);
+  EXPECT_EQ(health_while_loading, 2) << "health while loading (2: NOT_SERVING)";
+  EXPECT_EQ(list_while_loading.error_code(), grpc::StatusCode::UNAVAILABLE);
+  EXPECT_EQ(list_while_loading.error_message(),
+            "server is loading its state (health: NOT_SERVING); retry shortly");
+  auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(srv.port()),
+                                     grpc::InsecureChannelCredentials());
+  EXPECT_EQ(HealthStatus(channel), 1);
+  srv.Shutdown();
+}
+
 TEST_P(LifecycleTest, ClientCancellationLeavesNothingBehind) {
   ServerHarness h(GetParam());
   auto scenes = h.Scenes();
