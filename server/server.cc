@@ -178,11 +178,24 @@ void HapticServer::Impl::CommitScenes(const std::set<std::string>& restored) {
   if (!core.store) return;
   // The scenes of scene files and "default", in one transaction: a crash
   // during start-up leaves none of them half-written.
+  // What to write is read first: the store's lock is never held while the
+  // registry's or a scene's is taken (the mutations take them the other way
+  // round).
+  struct Pending {
+    ScenePtr scene;
+    v1::SceneConfig config;
+    std::uint64_t next_body_number;
+    SnapshotPtr snapshot;
+  };
+  std::vector<Pending> pending;
+  for (const ScenePtr& scene : core.scenes.List()) {
+    if (restored.count(scene->id())) continue;
+    pending.push_back({scene, scene->config(), scene->next_body_number(), scene->snapshot()});
+  }
   const grpc::Status s = core.store->Write([&](SceneStore::Txn& t) {
-    for (const ScenePtr& scene : core.scenes.List()) {
-      if (restored.count(scene->id())) continue;
-      t.PutScene(scene->id(), scene->description(), scene->config(), scene->next_body_number());
-      for (const BodyState& b : scene->snapshot()->bodies) t.PutBody(scene->id(), b);
+    for (const Pending& p : pending) {
+      t.PutScene(p.scene->id(), p.scene->description(), p.config, p.next_body_number);
+      for (const BodyState& b : p.snapshot->bodies) t.PutBody(p.scene->id(), b);
     }
   });
   if (!s.ok()) throw StoreError(s.error_message());
