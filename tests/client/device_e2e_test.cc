@@ -188,8 +188,14 @@ TEST(DeviceE2e, StalledUpdateStreamFadesAndRecovers) {
   auto ms_since_begin = [&](std::size_t i) {
     return 1e-6 * static_cast<double>(seen[i].time_ns - seen[0].time_ns);
   };
+  // An answer already on its way to the loop when the stall began (handed
+  // to the IR mailbox, not yet taken) may still arrive in its first ticks
+  // (seen under ASan): the gap is the one after the first 10 ms.
   std::size_t gap_end = 0;
-  while (gap_end < seen.size() && !seen[gap_end].new_ir) ++gap_end;
+  while (gap_end < seen.size() &&
+         (!seen[gap_end].new_ir || ms_since_begin(gap_end) < 10.0)) {
+    ++gap_end;
+  }
   ASSERT_LT(gap_end, seen.size()) << "answers never came back";
   ASSERT_GE(ms_since_begin(gap_end), 150.0) << "no stall seen (" << gap_end << " ticks); withheld "
                                             << rig.session->stats().withheld_updates;
