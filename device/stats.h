@@ -54,7 +54,8 @@ struct ServoStats {
   std::uint64_t outside_ticks = 0;  ///< ticks with the proxy outside the IR's validity
   std::uint64_t clamped_ticks = 0;  ///< ticks whose coupling stretch was clamped
   std::uint64_t device_errors = 0;
-  std::uint64_t nonfinite_resets = 0;  ///< ticks whose proxy went non-finite (put back on the handle)
+  std::uint64_t nonfinite_resets =
+      0;                   ///< ticks whose proxy went non-finite (put back on the handle)
   double max_force = 0;    ///< N, commanded
   double max_torque = 0;   ///< N m, commanded
   double max_dforce = 0;   ///< N per tick

@@ -47,8 +47,7 @@ void BuildContactModel(const GeometryModel& probe, const Pose& X_WA,
     const PenetrationResult& r = result.bodies[i];
     if (r.status == PdStatus::kFailed) failed = true;
     if (r.status == PdStatus::kPenetratingCapReached) capped = true;
-    if (r.status != PdStatus::kPenetratingSolved &&
-        r.status != PdStatus::kPenetratingCapReached) {
+    if (r.status != PdStatus::kPenetratingSolved && r.status != PdStatus::kPenetratingCapReached) {
       continue;
     }
     const Material& mat = bodies[i].material;
@@ -64,10 +63,10 @@ void BuildContactModel(const GeometryModel& probe, const Pose& X_WA,
     }
     for (const ContactRegion& g : r.regions) add(g.p_W, g.n_W, g.depth);
   }
-  out->outcome = failed              ? ContactOutcome::kFailed
-                 : capped            ? ContactOutcome::kCapReached
+  out->outcome = failed             ? ContactOutcome::kFailed
+                 : capped           ? ContactOutcome::kCapReached
                  : result.colliding ? ContactOutcome::kPenetrating
-                                     : ContactOutcome::kSeparated;
+                                    : ContactOutcome::kSeparated;
   out->wrench = result.wrench;
   if (result.deepest >= 0 && static_cast<std::size_t>(result.deepest) < bodies.size()) {
     const PenetrationResult& d = result.bodies[static_cast<std::size_t>(result.deepest)];

@@ -61,7 +61,7 @@ struct ContactModel {
   double sigma = 0;
   double rotation_angle = 0;
   Vec3 rotation_axis_W = Vec3::Zero();
-  Wrench wrench;  ///< penalty wrench at the answered pose (torque about c_W)
+  Wrench wrench;               ///< penalty wrench at the answered pose (torque about c_W)
   double validity_radius = 0;  ///< m
   double validity_angle = 0;   ///< rad
 };

@@ -113,7 +113,8 @@ grpc::Status TokenStore::CheckAnyToken(const grpc::ServerContextBase& ctx) const
   if (open_ || Find(ctx) != nullptr) return grpc::Status::OK;
   const auto& md = ctx.client_metadata();
   if (auto it = md.find("authorization");
-      it != md.end() && std::string_view(it->second.data(), it->second.size()).rfind("Bearer ", 0) != 0) {
+      it != md.end() &&
+      std::string_view(it->second.data(), it->second.size()).rfind("Bearer ", 0) != 0) {
     return grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
                         "the authorization metadata must be 'Bearer TOKEN' (the 'Bearer ' prefix "
                         "is missing)");

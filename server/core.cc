@@ -49,11 +49,10 @@ void BuildPool::Loop() {
     // The oldest job whose client is under its bound.
     auto next = jobs_.end();
     cv_.wait(lock, [&] {
-      next = std::find_if(jobs_.begin(), jobs_.end(),
-                          [&](const Job& j) {
-                            const auto it = running_.find(j.client);
-                            return it == running_.end() || it->second < per_client_;
-                          });
+      next = std::find_if(jobs_.begin(), jobs_.end(), [&](const Job& j) {
+        const auto it = running_.find(j.client);
+        return it == running_.end() || it->second < per_client_;
+      });
       return next != jobs_.end() || (stopping_ && jobs_.empty());
     });
     if (next == jobs_.end()) return;  // stopping, nothing left

@@ -166,9 +166,10 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
       stalled_ = true;
       core_->stats.observers_stalled.fetch_add(1, std::memory_order_relaxed);
       lock.unlock();
-      Log()->info("observer of scene '{}': a write has not completed for {:g} s (idle timeout): "
-                  "cancelled",
-                  scene_->id(), idle_s);
+      Log()->info(
+          "observer of scene '{}': a write has not completed for {:g} s (idle timeout): "
+          "cancelled",
+          scene_->id(), idle_s);
       ctx_->TryCancel();
       return now + std::chrono::hours(1);
     }

@@ -273,7 +273,9 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   grpc::Status WaitHello() {
     std::unique_lock lock(mb_mu_);
     grpc::Status end;
-    if (!WaitClient(lock, [&] { return hello_received_ || client_done_; }, &end)) return end;
+    if (!WaitClient(
+            lock, [&] { return hello_received_ || client_done_; }, &end))
+      return end;
     if (!hello_received_) return InvalidArgument("hello", "the stream ended before a hello");
     return grpc::Status::OK;
   }
@@ -307,13 +309,12 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       return grpc::Status(grpc::StatusCode::NOT_FOUND, "scene '" + scene_->id() + "' was deleted");
     }
     Send(&msg);
-    Log()->info("session {} on scene '{}': {} probe of {} triangles, mode {}{}", session_id_,
-                scene_->id(),
-                h.client_name().empty() ? "a" : wire::Printable(h.client_name()) + "'s",
-                worker_pd_.probe()->mesh().num_triangles(), v1::PdMode_Name(h.mode()),
-                h.probe_case() == v1::Hello::kProbeBodyId
-                    ? " (probe is body " + h.probe_body_id() + ")"
-                    : std::string());
+    Log()->info(
+        "session {} on scene '{}': {} probe of {} triangles, mode {}{}", session_id_, scene_->id(),
+        h.client_name().empty() ? "a" : wire::Printable(h.client_name()) + "'s",
+        worker_pd_.probe()->mesh().num_triangles(), v1::PdMode_Name(h.mode()),
+        h.probe_case() == v1::Hello::kProbeBodyId ? " (probe is body " + h.probe_body_id() + ")"
+                                                  : std::string());
     return grpc::Status::OK;
   }
 
@@ -328,9 +329,10 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     if (info.withheld != nullptr) {
       core_->stats.updates_withheld.fetch_add(1, std::memory_order_relaxed);
       if (withheld_++ == 0) {
-        Log()->warn("session {}: an answer was withheld ({}); it and any later ones go out as "
-                    "zero force, no rows (CONTACT_STATUS_WITHHELD)",
-                    session_id_, info.withheld);
+        Log()->warn(
+            "session {}: an answer was withheld ({}); it and any later ones go out as "
+            "zero force, no rows (CONTACT_STATUS_WITHHELD)",
+            session_id_, info.withheld);
       }
     }
     PublishProbe(p, info.force_W, info.depth);
@@ -361,7 +363,9 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       {
         std::unique_lock lock(mb_mu_);
         grpc::Status end;
-        if (!WaitClient(lock, [&] { return has_pose_ || client_done_; }, &end)) return end;
+        if (!WaitClient(
+                lock, [&] { return has_pose_ || client_done_; }, &end))
+          return end;
         if (!has_pose_) return grpc::Status::OK;  // client half-closed, everything answered
         if (worker_pd_.min_period().count() > 0) {
           mb_cv_.wait_until(lock, next_allowed, [&] { return stop_; });
@@ -378,7 +382,8 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
         return grpc::Status(grpc::StatusCode::NOT_FOUND,
                             "scene '" + scene_->id() + "' was deleted");
       }
-      if (worker_pd_.min_period().count() > 0) next_allowed = std::chrono::steady_clock::now() + worker_pd_.min_period();
+      if (worker_pd_.min_period().count() > 0)
+        next_allowed = std::chrono::steady_clock::now() + worker_pd_.min_period();
       Compute(p, superseded, &msg);
       Send(&msg);
     }

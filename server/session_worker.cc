@@ -68,8 +68,7 @@ v1::ContactStatus StatusOf(pd::ContactOutcome o) {
 SessionWorker::SessionWorker(const Limits& limits, std::string session_id)
     : limits_(limits), session_id_(std::move(session_id)) {}
 
-grpc::Status SessionWorker::Start(const v1::Hello& h, const ScenePtr& scene,
-                                  v1::Welcome* welcome) {
+grpc::Status SessionWorker::Start(const v1::Hello& h, const ScenePtr& scene, v1::Welcome* welcome) {
   // The scene's declared effects and PD mode (a hello without a mode gets
   // the scene's); without torque, answers carry no torque terms.
   const v1::SceneConfig config = scene->config();
@@ -92,8 +91,7 @@ grpc::Status SessionWorker::Start(const v1::Hello& h, const ScenePtr& scene,
     if (auto s = FromProto(h.material(), "hello.material", &probe_material_); !s.ok()) return s;
     has_probe_material_ = true;
   }
-  if (auto s = wire::CheckRange(h.max_rate_hz(), wire::kMaxRateHz, "hello.max_rate_hz");
-      !s.ok()) {
+  if (auto s = wire::CheckRange(h.max_rate_hz(), wire::kMaxRateHz, "hello.max_rate_hz"); !s.ok()) {
     return s;
   }
   if (h.max_rate_hz() > 0) {

@@ -34,9 +34,9 @@ struct MailPose {
 
 /// What one answer did, for the caller's counters, log and observers.
 struct AnswerInfo {
-  bool pd_ran = false;     ///< a PD query ran (false: mode none, or no contact effect)
-  double time_us = 0;      ///< its time
-  bool torque = true;      ///< the answer carries torque terms
+  bool pd_ran = false;  ///< a PD query ran (false: mode none, or no contact effect)
+  double time_us = 0;   ///< its time
+  bool torque = true;   ///< the answer carries torque terms
   /// Non-null: the answer was withheld (CONTACT_STATUS_WITHHELD), and why.
   const char* withheld = nullptr;
   Vec3 force_W = Vec3::Zero();  ///< the force sent

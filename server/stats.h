@@ -50,8 +50,8 @@ struct Stats {
   std::atomic<std::uint64_t> poses_superseded{0};  ///< poses replaced before PD started
   std::atomic<std::uint64_t> observer_frames_sent{0};
   std::atomic<std::uint64_t> observer_frames_dropped{0};
-  std::atomic<std::uint64_t> pd_calls{0};        ///< scene PD queries run
-  std::atomic<std::uint64_t> torque_skipped{0};  ///< answers without torque terms
+  std::atomic<std::uint64_t> pd_calls{0};          ///< scene PD queries run
+  std::atomic<std::uint64_t> torque_skipped{0};    ///< answers without torque terms
   std::atomic<std::uint64_t> updates_withheld{0};  ///< answers replaced (CONTACT_STATUS_WITHHELD)
   std::atomic<std::uint64_t> sessions_idle_ended{0};  ///< sessions ended by the idle timeout
   std::atomic<std::uint64_t> observers_stalled{0};    ///< observers cancelled for a stuck write

@@ -192,8 +192,7 @@ TEST(DeviceE2e, StalledUpdateStreamFadesAndRecovers) {
   // to the IR mailbox, not yet taken) may still arrive in its first ticks
   // (seen under ASan): the gap is the one after the first 10 ms.
   std::size_t gap_end = 0;
-  while (gap_end < seen.size() &&
-         (!seen[gap_end].new_ir || ms_since_begin(gap_end) < 10.0)) {
+  while (gap_end < seen.size() && (!seen[gap_end].new_ir || ms_since_begin(gap_end) < 10.0)) {
     ++gap_end;
   }
   ASSERT_LT(gap_end, seen.size()) << "answers never came back";

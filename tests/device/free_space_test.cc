@@ -85,9 +85,10 @@ class FreeSpace : public ::testing::TestWithParam<HandScript> {};
 
 TEST_P(FreeSpace, CommandedForceAndTorqueStayBelowWhatAHandNotices) {
   const FreeStats s = RunScript(GetParam(), 0.2);  // never near the box
-  std::printf("%s: %d free ticks (%d fast), max %.4f N, %.5f N m; handle up to %.2f m/s, %.2f rad/s\n",
-              ToString(GetParam()), s.judged, s.fast, s.max_force, s.max_torque, s.max_speed,
-              s.max_ang_speed);
+  std::printf(
+      "%s: %d free ticks (%d fast), max %.4f N, %.5f N m; handle up to %.2f m/s, %.2f rad/s\n",
+      ToString(GetParam()), s.judged, s.fast, s.max_force, s.max_torque, s.max_speed,
+      s.max_ang_speed);
   EXPECT_GT(s.judged, 400);
   EXPECT_LE(s.max_force, kMaxFreeForce);
   EXPECT_LE(s.max_torque, kMaxFreeTorque);
@@ -109,13 +110,14 @@ TEST_P(FreeSpace, NoContactTicksOfAScriptThatTouchesStayFreeAndContactStillPushe
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(
-    Scripts, FreeSpace,
-    ::testing::Values(HandScript::kHold, HandScript::kPress, HandScript::kSlide, HandScript::kTwist,
-                      HandScript::kCircle, HandScript::kLoop, HandScript::kPlate),
-    [](const ::testing::TestParamInfo<HandScript>& info) {
-      return std::string(ToString(info.param));
-    });
+INSTANTIATE_TEST_SUITE_P(Scripts, FreeSpace,
+                         ::testing::Values(HandScript::kHold, HandScript::kPress,
+                                           HandScript::kSlide, HandScript::kTwist,
+                                           HandScript::kCircle, HandScript::kLoop,
+                                           HandScript::kPlate),
+                         [](const ::testing::TestParamInfo<HandScript>& info) {
+                           return std::string(ToString(info.param));
+                         });
 
 TEST(ContactWeight, OneInsideAndAtTheSurfaceFallingToZeroAtTheMargin) {
   EXPECT_EQ(ContactWeight(0.002, 1e-3), 1.0);

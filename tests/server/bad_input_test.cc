@@ -431,7 +431,8 @@ TEST_F(BadInputTable, SceneServiceRequests) {
                     return Add({h, Chunk(tet)});
                   },
                   StatusCode::INVALID_ARGUMENT,
-                  "chunk: " + std::to_string(tet.size()) + " bytes received, header.total_bytes said " +
+                  "chunk: " + std::to_string(tet.size()) +
+                      " bytes received, header.total_bytes said " +
                       std::to_string(tet.size() + 5)});
   Check(rows, "SceneService");
 }
@@ -474,10 +475,10 @@ TEST_F(BadInputTable, CoupleHello) {
              with([](v1::Hello* h) { h->mutable_material()->set_stiffness(std::nan("")); }));
        },
        StatusCode::INVALID_ARGUMENT, "hello.material.stiffness: must be a finite number, got nan"});
-  rows.push_back(
-      {"rate out of range",
-       [&] { return Hello(with([](v1::Hello* h) { h->set_max_rate_hz(1e6); })); },
-       StatusCode::INVALID_ARGUMENT, "hello.max_rate_hz: must be in [0, 100000] Hz, got 1e+06"});
+  rows.push_back({"rate out of range",
+                  [&] { return Hello(with([](v1::Hello* h) { h->set_max_rate_hz(1e6); })); },
+                  StatusCode::INVALID_ARGUMENT,
+                  "hello.max_rate_hz: must be in [0, 100000] Hz, got 1e+06"});
   rows.push_back({"observe-only token", [&] { return Hello(Session::DefaultHello(), "obs"); },
                   StatusCode::PERMISSION_DENIED,
                   "token 'watcher' lacks role 'device' on scene 'default'"});

@@ -29,9 +29,8 @@ namespace fs = std::filesystem;
 class TwoTokens {
  public:
   TwoTokens() {
-    path_ = fs::temp_directory_path() /
-            ("hapticpd_boundary_" + std::to_string(::getpid()) + "_" +
-             std::to_string(counter_++) + ".json");
+    path_ = fs::temp_directory_path() / ("hapticpd_boundary_" + std::to_string(::getpid()) + "_" +
+                                         std::to_string(counter_++) + ".json");
     std::ofstream(path_) << R"({"tokens": [
       {"token": "alice", "name": "alice", "roles": {"*": ["admin"]}},
       {"token": "bob", "name": "bob", "roles": {"*": ["admin"]}}]})";
@@ -146,7 +145,8 @@ TEST(Boundary, MegabyteAndControlCharacterIdsComeBackBoundedAndNamed) {
     ExpectBoundedAndEscaped(c, "scene_id");
 
     v1::Body body;
-    const grpc::Status a = AddBodyRaw(*scenes, {ShapeHeader("default", "box", id, MakePose(0, 0, 0))}, &body);
+    const grpc::Status a =
+        AddBodyRaw(*scenes, {ShapeHeader("default", "box", id, MakePose(0, 0, 0))}, &body);
     EXPECT_EQ(a.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
     ExpectBoundedAndEscaped(a, "header.spec.body_id");
   }
@@ -234,7 +234,8 @@ v1::AddBodyRequest Bytes(std::string b) {
 TEST(Boundary, TotalBytesIsHeldInBothDirections) {
   ServerHarness h(Transport::kInProcess);
   auto scenes = h.Scenes();
-  const std::string obj = "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+  const std::string obj =
+      "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
   v1::Body body;
   // Understated: more bytes arrive than announced.
   grpc::Status s = AddBodyRaw(*scenes, {FileHeader("under", 10), Bytes(obj)}, &body);

@@ -162,7 +162,8 @@ TEST(SessionWorker, ServerUpdateAndTheDeviceSourceGiveTheSameRowsAndValidity) {
     BoxScene s;
     SessionWorker w(server::Limits{}, "s1");
     v1::Welcome welcome;
-    ASSERT_TRUE(w.Start(Session::DefaultHello("s", v1::PD_MODE_PDT, shape), s.scene, &welcome).ok());
+    ASSERT_TRUE(
+        w.Start(Session::DefaultHello("s", v1::PD_MODE_PDT, shape), s.scene, &welcome).ok());
     pd::SceneBody body{s.box, Pose::Identity(), pd::Material{}};
     body.material.static_friction = 0.6;
     body.material.dynamic_friction = 0.4;

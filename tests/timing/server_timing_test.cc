@@ -3,8 +3,8 @@
 // stuck write), so they run in the release preset only, under the ctest
 // label `timing`, with timeouts shortened to a fraction of a second and
 // margins of seconds. The sanitizer presets leave this suite out.
-#include <signal.h>
 #include <fcntl.h>
+#include <signal.h>
 #include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -43,8 +43,8 @@ TEST(ServerTiming, SilentDeviceSessionEndsAtTheIdleTimeoutAndFreesItsSlot) {
   }
   // Now the client neither writes nor reads.
   const auto t0 = Clock::now();
-  ASSERT_TRUE(WaitUntil([&] { return h.server().counts().sessions == 0; },
-                        std::chrono::seconds(10)));
+  ASSERT_TRUE(
+      WaitUntil([&] { return h.server().counts().sessions == 0; }, std::chrono::seconds(10)));
   EXPECT_GE(Clock::now() - t0, std::chrono::milliseconds(250)) << "ended before the timeout";
   EXPECT_EQ(h.server().counts().sessions_idle_ended, 1u);
   const grpc::Status end = frozen.Finish();
@@ -67,8 +67,8 @@ TEST(ServerTiming, SessionThatNeverSendsAHelloEndsAtTheIdleTimeout) {
   auto haptics = h.Haptics();
   Session mute(*haptics);
   ASSERT_TRUE(WaitUntil([&] { return h.server().counts().active_calls == 1; }));
-  ASSERT_TRUE(WaitUntil([&] { return h.server().counts().active_calls == 0; },
-                        std::chrono::seconds(10)));
+  ASSERT_TRUE(
+      WaitUntil([&] { return h.server().counts().active_calls == 0; }, std::chrono::seconds(10)));
   EXPECT_EQ(mute.Finish().error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
 }
 
@@ -93,8 +93,8 @@ TEST(ServerTiming, SessionThatKeepsSendingIsNotEndedByTheIdleTimeout) {
 /// `hapticpd couple` as a child process.
 pid_t SpawnCouple(int port) {
   const std::string server = "127.0.0.1:" + std::to_string(port);
-  std::vector<std::string> args = {HAPTICPD_CLI_PATH, "couple", "--server", server, "--duration",
-                                   "60", "--rate", "100"};
+  std::vector<std::string> args = {HAPTICPD_CLI_PATH, "couple", "--server", server,
+                                   "--duration",      "60",     "--rate",   "100"};
   std::vector<char*> argv;
   for (auto& a : args) argv.push_back(a.data());
   argv.push_back(nullptr);
@@ -158,8 +158,8 @@ TEST(ServerTiming, ObserverWhoseWriteIsStuckIsCancelledAtTheIdleTimeout) {
   req.set_rate_hz(100);
   auto reader = stub->Watch(ctx.get(), req);  // never read
   ASSERT_TRUE(WaitUntil([&] { return h.server().counts().observers == 1; }));
-  EXPECT_TRUE(WaitUntil([&] { return h.server().counts().observers == 0; },
-                        std::chrono::seconds(20)))
+  EXPECT_TRUE(
+      WaitUntil([&] { return h.server().counts().observers == 0; }, std::chrono::seconds(20)))
       << "an observer that takes nothing still holds its slot";
   EXPECT_EQ(h.server().counts().observers_stalled, 1u);
   ctx->TryCancel();
