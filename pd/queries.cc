@@ -498,6 +498,45 @@ bool EdgeEdgeNormal(const GeometryModel& A, const Mat3& R_BA, Index ea, const Ge
 // ---------------------------------------------------------------------------
 // Collision and containment
 
+void TrianglesWithinSphere(const GeometryModel& model, const Vec3& p_M, double radius,
+                           std::vector<TriangleDistance>* out, QueryScratch* scratch) {
+  out->clear();
+  if (!(radius >= 0)) return;
+  const double r_sq = radius * radius;
+  const auto& nodes = model.bvh().nodes();
+  const auto& prims = model.bvh().primitives();
+  const auto& V = model.mesh().vertices();
+  const auto& T = model.mesh().triangles();
+  if (nodes.empty() || T.empty()) return;
+  auto& stack = scratch->stack;
+  stack.clear();
+  stack.emplace_back(0, 0);
+  while (!stack.empty()) {
+    const BvhNode& n = nodes[stack.back().first];
+    stack.pop_back();
+    ++scratch->node_tests;
+    // Distance from the point to the box: a box farther than the radius
+    // holds no triangle within it (with a round-off slack, so that a
+    // triangle on the sphere is never lost to the box's rounding).
+    const Vec3 gap = ((p_M - n.center).cwiseAbs() - n.half).cwiseMax(0.0);
+    const double slack = 1e-12 * (p_M.norm() + n.center.norm() + n.half.norm());
+    if (gap.squaredNorm() > r_sq + slack * (2 * radius + slack)) continue;
+    if (!n.leaf()) {
+      stack.emplace_back(n.first, 0);
+      stack.emplace_back(n.first + 1, 0);
+      continue;
+    }
+    for (Index k = n.first; k < n.first + n.count; ++k) {
+      const Index f = prims[k];
+      const Triangle& t = T[f];
+      ++scratch->triangle_tests;
+      const Vec3 q = internal::ClosestPointOnTriangle(p_M, V[t[0]], V[t[1]], V[t[2]], nullptr);
+      const double d = (q - p_M).norm();
+      if (d <= radius) out->push_back({f, d});
+    }
+  }
+}
+
 bool PointInside(const GeometryModel& model, const Vec3& p_M, QueryScratch* scratch) {
   // Directions chosen to be far from any axis or diagonal, so a ray through
   // an edge of a CAD-like mesh is unlikely; an exact zero in any predicate

@@ -116,6 +116,20 @@ bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
 /// answer is the parity along one ray and carries no guarantee.
 bool PointInside(const GeometryModel& model, const Vec3& p_M, QueryScratch* scratch);
 
+/// A triangle near a point: its index in the mesh and its distance (m).
+struct TriangleDistance {
+  Index triangle = -1;
+  double distance = 0;
+};
+
+/// Every triangle of `model` whose distance to the point `p_M` (mesh frame)
+/// is at most `radius` (m), with that distance (ClosestPointOnTriangle, the
+/// same number for the same input), in BVH leaf order. Clears `out` first.
+/// Boxes farther than `radius` are skipped; no allocation once `out` and the
+/// scratch's stack have grown.
+void TrianglesWithinSphere(const GeometryModel& model, const Vec3& p_M, double radius,
+                           std::vector<TriangleDistance>* out, QueryScratch* scratch);
+
 enum class FeatureType : std::uint8_t {
   kVertexFace,  ///< vertex of A against a face of B
   kFaceVertex,  ///< face of A against a vertex of B

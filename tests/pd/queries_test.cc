@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <random>
 #include <set>
 #include <tuple>
@@ -654,6 +655,48 @@ TEST(RigidCcd, InterpolationEndsAndKeepsCentreOnALine) {
   EXPECT_LT((InterpolateRigid(X0, X1, c, 1).t - X1.t).norm(), 1e-12);
   const Vec3 mid = InterpolateRigid(X0, X1, c, 0.5) * c;
   EXPECT_LT((mid - 0.5 * (X0 * c + X1 * c)).norm(), 1e-12);
+}
+
+// --------------------------------------------------------------------------
+// Triangles within a sphere: the BVH walk against brute force
+
+TEST(TrianglesWithinSphere, MatchesBruteForceOnATorusKnot) {
+  const ModelPtr knot = MakeModel(shapes::TorusKnot());
+  const Mesh& mesh = knot->mesh();
+  std::mt19937_64 rng(testing::TestSeed());
+  std::uniform_real_distribution<double> coord(-0.07, 0.07);
+  std::uniform_real_distribution<double> radius(0.0, 0.04);
+  QueryScratch scratch;
+  std::vector<TriangleDistance> found;
+  int nonempty = 0;
+  const int n = testing::TestCount(300);
+  for (int i = 0; i < n; ++i) {
+    const Vec3 c(coord(rng), coord(rng), 0.3 * coord(rng));
+    const double r = radius(rng);
+    TrianglesWithinSphere(*knot, c, r, &found, &scratch);
+    std::set<Index> brute;
+    for (Index f = 0; f < static_cast<Index>(mesh.num_triangles()); ++f) {
+      const Triangle& t = mesh.triangles()[f];
+      const Vec3 q = internal::ClosestPointOnTriangle(
+          c, mesh.vertices()[t[0]], mesh.vertices()[t[1]], mesh.vertices()[t[2]], nullptr);
+      if ((q - c).norm() <= r) brute.insert(f);
+    }
+    std::set<Index> got;
+    for (const TriangleDistance& td : found) {
+      EXPECT_TRUE(got.insert(td.triangle).second) << "triangle " << td.triangle << " twice";
+      EXPECT_LE(td.distance, r);
+    }
+    ASSERT_EQ(got, brute) << "query " << i << " at (" << c.transpose() << "), radius " << r;
+    nonempty += !brute.empty();
+  }
+  EXPECT_GT(nonempty, n / 10);  // the queries do reach the surface
+  // A sphere through a vertex holds its triangles; a negative radius nothing.
+  const Vec3 v = mesh.vertices()[mesh.triangles()[7][1]];
+  TrianglesWithinSphere(*knot, v, 0.0, &found, &scratch);
+  EXPECT_TRUE(std::any_of(found.begin(), found.end(),
+                          [](const TriangleDistance& td) { return td.triangle == 7; }));
+  TrianglesWithinSphere(*knot, v, -1.0, &found, &scratch);
+  EXPECT_TRUE(found.empty());
 }
 
 }  // namespace
