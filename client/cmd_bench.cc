@@ -152,6 +152,7 @@ struct DelayCmdOptions {
   std::string scripts = "press,slide,twist";
   double time_scale = 1;
   std::uint64_t seed = 1;
+  bool server_only = false;
 };
 
 std::vector<std::string> SplitCommas(const std::string& s) {
@@ -195,6 +196,7 @@ void RunDelayCmd(const DelayCmdOptions& o) {
   }
   d.time_scale = o.time_scale;
   d.seed = o.seed;
+  d.local_model = !o.server_only;
   {
     BenchOptions b;
     b.models = o.models;
@@ -218,6 +220,7 @@ void RunDelayCmd(const DelayCmdOptions& o) {
   }
   std::string command = "hapticpd bench delay --delays " + o.delays + " --scripts " + o.scripts;
   if (o.time_scale != 1) command += " --time-scale " + std::to_string(o.time_scale);
+  if (o.server_only) command += " --server-only";
   if (o.models_given) command += " --models " + o.models;
   const std::time_t now = std::time(nullptr);
   char date[64];
@@ -326,6 +329,8 @@ void RegisterBench(CLI::App& app) {
                     "Multiply every script's duration (smaller: faster, for tests)")
         ->capture_default_str();
     cmd->add_option("--seed", o->seed, "Seed of the emulated link's jitter")->capture_default_str();
+    cmd->add_flag("--server-only", o->server_only,
+                  "Run the device sessions without the local contact model (server answers only)");
     cmd->callback([o] { RunDelayCmd(*o); });
   }
 }

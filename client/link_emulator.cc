@@ -57,12 +57,12 @@ double LinkSchedule::Uniform() {
   return static_cast<double>(SplitMix64(&state_) >> 11) * 0x1.0p-53;
 }
 
-std::optional<std::int64_t> LinkSchedule::Admit(std::int64_t send_ns) {
+std::optional<std::int64_t> LinkSchedule::Admit(std::int64_t send_ns, bool may_lose) {
   // Both draws every time, so a message's delay does not depend on whether
   // the ones before it were lost.
   const double u_loss = Uniform();
   const double u_jitter = Uniform();
-  if (u_loss < loss_) return std::nullopt;
+  if (may_lose && u_loss < loss_) return std::nullopt;
   const std::int64_t jitter = std::llround((2 * u_jitter - 1) * static_cast<double>(jitter_ns_));
   const std::int64_t due = std::max(last_delivery_ns_, send_ns + delay_ns_ + jitter);
   last_delivery_ns_ = due;

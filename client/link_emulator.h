@@ -61,8 +61,11 @@ class LinkSchedule {
   LinkSchedule(const LinkOptions& options, std::uint64_t stream);
 
   /// nullopt: the message is lost; else its delivery time (ns, same clock
-  /// as send_ns), never earlier than the previous delivery.
-  std::optional<std::int64_t> Admit(std::int64_t send_ns);
+  /// as send_ns), never earlier than the previous delivery. A message that
+  /// may not be lost (`may_lose` false: a geometry patch, which the stream
+  /// delivers reliably) still draws its loss, so the schedule of the others
+  /// stays the seed's.
+  std::optional<std::int64_t> Admit(std::int64_t send_ns, bool may_lose = true);
   /// Forgets the previous delivery time (a new stream starts empty).
   void Restart() { last_delivery_ns_ = std::numeric_limits<std::int64_t>::min(); }
 
@@ -85,11 +88,11 @@ class DelayLine {
       : schedule_(options, stream), max_in_flight_(options.max_in_flight) {}
 
   /// Offers `message` to the link at `now_ns`; false if it was dropped
-  /// (loss or overflow).
-  bool Send(T message, std::int64_t now_ns) {
+  /// (loss, unless `may_lose` is false, or overflow).
+  bool Send(T message, std::int64_t now_ns, bool may_lose = true) {
     std::lock_guard lock(mu_);
     ++counters_.sent;
-    const std::optional<std::int64_t> due = schedule_.Admit(now_ns);
+    const std::optional<std::int64_t> due = schedule_.Admit(now_ns, may_lose);
     if (!due) {
       ++counters_.lost;
       return false;
@@ -173,7 +176,7 @@ class DelayLine {
 
 /// The stream numbers of the two directions (LinkSchedule's `stream`).
 inline constexpr std::uint64_t kLinkUp = 1;    ///< poses, client -> server
-inline constexpr std::uint64_t kLinkDown = 2;  ///< ContactUpdates, server -> client
+inline constexpr std::uint64_t kLinkDown = 2;  ///< ContactUpdates and patches, server -> client
 
 /// One line describing the options, e.g. "50 ms +-10 ms one way, 1% loss".
 std::string LinkDescription(const LinkOptions& options);

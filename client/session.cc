@@ -1,6 +1,9 @@
 #include "client/session.h"
 
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
+
+#include "proto/wire/convert.h"
 
 #include <algorithm>
 #include <chrono>
@@ -156,7 +159,81 @@ bool IrFromContactUpdate(const v1::ContactUpdate& u, const Pose& X_AP, std::int6
   ir->validity_radius = std::isfinite(u.validity_radius()) ? u.validity_radius() : 0;
   ir->validity_angle = std::isfinite(u.validity_angle()) ? u.validity_angle() : 0;
   ir->compute_time_us = u.compute_time_us();
+  ir->source = device::kIrSourceServer;
   return true;
+}
+
+std::string PatchDeltaFromProto(const v1::GeometryPatch& g, std::size_t max_triangles_per_body,
+                                device::PatchDelta* out) {
+  out->sequence = g.sequence();
+  out->scene_revision = g.scene_revision();
+  out->server_time_ns = g.server_time_ns();
+  out->center_W = ToVec(g.center());
+  out->radius = g.radius();
+  out->wire_bytes = g.ByteSizeLong();
+  out->bodies.clear();
+  out->dropped_bodies.assign(g.dropped_bodies().begin(), g.dropped_bodies().end());
+  const std::string where = fmt::format("patch {}", g.sequence());
+  if (!Finite(out->center_W) || !std::isfinite(out->radius)) {
+    return where + ": center or radius not finite";
+  }
+  out->bodies.resize(static_cast<std::size_t>(g.bodies_size()));
+  for (int i = 0; i < g.bodies_size(); ++i) {
+    const v1::BodyPatch& b = g.bodies(i);
+    device::PatchBodyDelta& d = out->bodies[static_cast<std::size_t>(i)];
+    const std::string field = fmt::format("{} bodies[{}] ('{}')", where, i, b.body_id());
+    d.id = b.body_id();
+    d.key = b.body_key();
+    d.triangle_count = b.triangle_count();
+    d.vertex_count = b.vertex_count();
+    if (!ToPose(b.pose(), &d.X_WB)) return field + ".pose: not a finite pose";
+    d.v_W = ToVec(b.velocity().linear());
+    d.w_W = ToVec(b.velocity().angular());
+    d.pose_time_ns = b.pose_time_ns();
+    const v1::Material& m = b.material();
+    d.material.stiffness = m.stiffness();
+    d.material.rotational_stiffness = m.rotational_stiffness();
+    d.material.damping = m.damping();
+    d.material.static_friction = m.static_friction();
+    d.material.dynamic_friction = m.dynamic_friction();
+    d.cover_center_B = ToVec(b.cover_center());
+    d.cover_radius = b.cover_radius();
+    d.truncated = b.truncated();
+    if (!Finite(d.v_W) || !Finite(d.w_W) || !Finite(d.cover_center_B) ||
+        !std::isfinite(d.cover_radius)) {
+      return field + ": velocity or cover not finite";
+    }
+    if (b.vertices_size() != 3 * b.vertex_indices_size()) {
+      return fmt::format("{}.vertices: {} numbers for {} vertex indices (3 each)", field,
+                         b.vertices_size(), b.vertex_indices_size());
+    }
+    if (b.triangles_size() != 3 * b.triangle_indices_size()) {
+      return fmt::format("{}.triangles: {} indices for {} triangle indices (3 each)", field,
+                         b.triangles_size(), b.triangle_indices_size());
+    }
+    if (static_cast<std::size_t>(b.triangle_indices_size()) > max_triangles_per_body) {
+      return fmt::format("{}: {} triangles, over the limit of {}", field, b.triangle_indices_size(),
+                         max_triangles_per_body);
+    }
+    d.vertex_indices.assign(b.vertex_indices().begin(), b.vertex_indices().end());
+    d.vertices.resize(d.vertex_indices.size());
+    for (std::size_t k = 0; k < d.vertices.size(); ++k) {
+      const int j = static_cast<int>(3 * k);
+      d.vertices[k] = Vec3(b.vertices(j), b.vertices(j + 1), b.vertices(j + 2));
+      if (!Finite(d.vertices[k])) {
+        return fmt::format("{}.vertices: vertex {} not finite or beyond 1e6 m", field,
+                           d.vertex_indices[k]);
+      }
+    }
+    d.triangle_indices.assign(b.triangle_indices().begin(), b.triangle_indices().end());
+    d.triangles.resize(d.triangle_indices.size());
+    for (std::size_t k = 0; k < d.triangles.size(); ++k) {
+      const int j = static_cast<int>(3 * k);
+      d.triangles[k] = {b.triangles(j), b.triangles(j + 1), b.triangles(j + 2)};
+    }
+    d.dropped_triangles.assign(b.dropped_triangles().begin(), b.dropped_triangles().end());
+  }
+  return "";
 }
 
 struct Session::Stream {
@@ -172,6 +249,12 @@ Session::Session(SessionOptions options, const device::Clock* clock)
   if (options_.hello.protocol_version() == 0) options_.hello.set_protocol_version(1);
   if (options_.hello.client_name().empty()) options_.hello.set_client_name("hapticpd device");
   if (!options_.credentials) options_.credentials = grpc::InsecureChannelCredentials();
+  if (options_.local_model) {
+    v1::PatchRequest* pr = options_.hello.mutable_patches();
+    pr->set_enabled(true);
+    pr->set_max_triangles_per_body(options_.patch_max_triangles);
+    pr->set_min_margin(options_.patch_min_margin);
+  }
   if (options_.link) {
     if (const std::string problem = LinkOptionsProblem(*options_.link); !problem.empty()) {
       throw SessionError("session: " + problem);
@@ -273,9 +356,45 @@ void Session::Connect() {
   // LocalPdIrSource), so the handle's orientation is the probe's.
   X_PA_ = Pose::FromTranslation(-X_MB.t);
   X_AP_ = X_PA_.Inverse();
+  if (options_.local_model) StartLocalModel();
   std::lock_guard lock(stats_mu_);
   ++counters_.connects;
   counters_.session_id = welcome_.session_id();
+}
+
+void Session::StartLocalModel() {
+  const v1::Hello& h = options_.hello;
+  std::string note;
+  std::optional<pd::Mesh> mesh;
+  grpc::Status st;
+  if (welcome_.mode() != v1::PD_MODE_PDT && welcome_.mode() != v1::PD_MODE_PDG) {
+    note = "off: the session's mode computes no PD";
+  } else if (h.probe_case() == v1::Hello::kProbeShape) {
+    st = wire::MeshFromShape(h.probe_shape(), "hello.probe_shape", 20'000'000, &mesh);
+  } else if (h.probe_case() == v1::Hello::kProbeMesh) {
+    st = wire::MeshFromInline(h.probe_mesh(), "hello.probe_mesh", 20'000'000, &mesh);
+  } else {
+    note = "off: the probe is a scene body (the client has no copy of its mesh)";
+  }
+  if (!st.ok()) note = "off: " + st.error_message();
+  if (note.empty() && mesh) {
+    pd::ModelPtr probe = pd::MakeModel(std::move(*mesh));
+    device::LocalModelOptions o;
+    o.mode =
+        welcome_.mode() == v1::PD_MODE_PDG ? pd::PdMode::kGeneralized : pd::PdMode::kTranslational;
+    const device::EffectSet fx = EffectsFromSceneConfig(welcome_.scene_config());
+    o.torque = fx.Has(device::Effect::kTorque);
+    const v1::SceneConfig& c = welcome_.scene_config();
+    if (c.probe_mass() > 0 && c.probe_inertia() > 0) {
+      o.request.principal_inertia_over_mass = Vec3::Constant(c.probe_inertia() / c.probe_mass());
+    }
+    o.limits.max_triangles_per_body = options_.patch_max_triangles;
+    local_ = std::make_unique<device::LocalContactModel>(std::move(probe), X_PA_, o);
+    note = "on";
+  }
+  std::lock_guard lock(stats_mu_);
+  counters_.local_model = local_ != nullptr;
+  counters_.local_model_note = note;
 }
 
 void Session::Start(device::ServoLoop* loop) {
@@ -283,6 +402,7 @@ void Session::Start(device::ServoLoop* loop) {
   if (!first_) throw SessionError("session: Start() before Connect()");
   loop_ = loop;
   stopping_ = false;
+  if (local_) local_->Start(&loop_->ir_mailbox(), clock_);
   thread_ = std::jthread([this](std::stop_token st) { Run(st); });
 }
 
@@ -298,6 +418,7 @@ void Session::Stop() {
   thread_.request_stop();
   thread_.join();
   thread_ = std::jthread();
+  if (local_) local_->Stop();
 }
 
 void Session::StallUpdatesFor(double seconds) {
@@ -308,6 +429,16 @@ void Session::StallUpdatesFor(double seconds) {
 void Session::ReadLoop(Stream* s) {
   v1::CoupleResponse resp;
   while (s->rw->Read(&resp)) {
+    if (resp.has_patch()) {
+      // Patches are never withheld or lost: each is a delta on the last.
+      const std::int64_t now = clock_->NowNs();
+      if (link_) {
+        link_->updates.Send(resp, now, /*may_lose=*/false);
+      } else {
+        AcceptPatch(resp.patch(), now);
+      }
+      continue;
+    }
     if (!resp.has_update()) continue;
     const std::int64_t now = clock_->NowNs();
     if (now < stall_until_ns_.load(std::memory_order_relaxed)) {
@@ -316,7 +447,7 @@ void Session::ReadLoop(Stream* s) {
       continue;
     }
     if (link_) {
-      link_->updates.Send(resp.update(), now);
+      link_->updates.Send(resp, now);
     } else {
       Accept(resp.update(), now);
     }
@@ -325,15 +456,42 @@ void Session::ReadLoop(Stream* s) {
 }
 
 void Session::Accept(const v1::ContactUpdate& u, std::int64_t now) {
-  device::IrMailbox& out = loop_->ir_mailbox();
-  const bool good = IrFromContactUpdate(u, X_AP_, now, &out.back());
-  if (good) out.Publish();
+  bool good;
+  if (local_) {
+    // The local model decides what the loop renders (device/local_model.h).
+    good = IrFromContactUpdate(u, X_AP_, now, &server_ir_);
+    if (good) local_->OfferServerIr(server_ir_);
+  } else {
+    device::IrMailbox& out = loop_->ir_mailbox();
+    good = IrFromContactUpdate(u, X_AP_, now, &out.back());
+    if (good) out.Publish();
+  }
   // Round trip: from writing the pose (or, with an emulated link, offering
   // it to the link) to reading its answer (or taking it out of the link).
   const std::size_t slot = u.sequence() % kRing;
   double rtt_us = -1;
+  std::int64_t sent = 0;
   if (sent_seq_[slot].load(std::memory_order_acquire) == u.sequence()) {
-    rtt_us = 1e-3 * static_cast<double>(now - sent_ns_[slot].load(std::memory_order_relaxed));
+    sent = sent_ns_[slot].load(std::memory_order_relaxed);
+    rtt_us = 1e-3 * static_cast<double>(now - sent);
+  }
+  if (rtt_us >= 0) {
+    // The round trip the server sizes patches by (smoothed), and the server
+    // clock's offset from the sample with the shortest round trip lately
+    // (NTP's filter: its two one-way delays are the least uneven).
+    const double prev = rtt_estimate_us_.load(std::memory_order_relaxed);
+    rtt_estimate_us_.store(prev > 0 ? 0.9 * prev + 0.1 * rtt_us : rtt_us,
+                           std::memory_order_relaxed);
+    if (local_ && u.server_receive_time_ns() != 0 && u.server_send_time_ns() != 0 &&
+        (best_rtt_us_ <= 0 || rtt_us <= best_rtt_us_ || ++since_best_ > 512)) {
+      best_rtt_us_ = rtt_us;
+      since_best_ = 0;
+      const std::int64_t offset =
+          ((u.server_receive_time_ns() - sent) + (u.server_send_time_ns() - now)) / 2;
+      local_->SetServerClockOffset(offset);
+      std::lock_guard lock(stats_mu_);
+      counters_.server_clock_offset_ms = 1e-6 * static_cast<double>(offset);
+    }
   }
   std::lock_guard lock(stats_mu_);
   ++counters_.updates;
@@ -344,12 +502,31 @@ void Session::Accept(const v1::ContactUpdate& u, std::int64_t now) {
   compute_us_.Add(u.compute_time_us());
 }
 
+void Session::AcceptPatch(const v1::GeometryPatch& g, std::int64_t now) {
+  {
+    std::lock_guard lock(stats_mu_);
+    ++counters_.patches_received;
+  }
+  if (!local_) return;
+  device::PatchDelta d;
+  const std::string problem = PatchDeltaFromProto(g, options_.patch_max_triangles, &d);
+  if (problem.empty()) {
+    local_->OfferPatch(std::move(d), now);
+  } else {
+    local_->RejectPatch(problem);
+  }
+}
+
 void Session::DeliverLoop(const std::atomic<bool>& done) {
-  v1::ContactUpdate u;
+  v1::CoupleResponse m;
   while (!done.load()) {
     const std::int64_t now = clock_->NowNs();
-    if (link_->updates.Receive(now, &u)) {
-      Accept(u, now);
+    if (link_->updates.Receive(now, &m)) {
+      if (m.has_patch()) {
+        AcceptPatch(m.patch(), now);
+      } else if (m.has_update()) {
+        Accept(m.update(), now);
+      }
       continue;
     }
     // Sleep until the next update is due (at most 2 ms, so `done` is seen).
@@ -363,6 +540,7 @@ bool Session::WritePose(Stream& s, const device::ProxySample& x, v1::CoupleReque
   p->set_sequence(x.sequence);
   SetPose(x.X_WA, p->mutable_pose());
   p->set_client_time_ns(x.time_ns);
+  if (local_) p->set_round_trip_us(rtt_estimate_us_.load(std::memory_order_relaxed));
   if (!s.rw->Write(*req)) return false;
   std::lock_guard lock(stats_mu_);
   ++counters_.poses_sent;
@@ -370,6 +548,8 @@ bool Session::WritePose(Stream& s, const device::ProxySample& x, v1::CoupleReque
 }
 
 void Session::Serve(Stream& s, std::stop_token st) {
+  // A new stream is a new server session: its patches start from nothing.
+  if (local_) local_->Reset();
   connected_ = true;
   std::thread reader([this, &s] { ReadLoop(&s); });
   std::atomic<bool> deliver_done{false};
@@ -385,6 +565,7 @@ void Session::Serve(Stream& s, std::stop_token st) {
     if (in.Fetch()) {
       idle = false;
       const device::ProxySample& x = in.front();
+      if (local_) local_->OfferSample(x);
       const std::int64_t now = clock_->NowNs();
       const std::size_t slot = x.sequence % kRing;
       sent_ns_[slot].store(now, std::memory_order_relaxed);
@@ -409,6 +590,8 @@ void Session::Serve(Stream& s, std::stop_token st) {
     if (idle) std::this_thread::sleep_for(poll);
   }
   connected_ = false;
+  // The scene may change unseen while the stream is down.
+  if (local_) local_->Reset();
   if (st.stop_requested()) {
     s.rw->WritesDone();  // the server then ends the stream with OK
     // Bounded: cancel if the server does not finish promptly.
@@ -497,6 +680,7 @@ SessionStats Session::stats() const {
   s.rtt_mean_us = rtt_us_.mean();
   s.server_compute_p50_us = compute_us_.Quantile(0.5);
   s.server_compute_p99_us = compute_us_.Quantile(0.99);
+  if (local_) s.local = local_->stats();
   if (link_) {
     s.link.active = true;
     s.link.poses = link_->poses.counters();

@@ -38,6 +38,7 @@
 #include "client/link_emulator.h"
 #include "device/haptic_device.h"
 #include "device/ir.h"
+#include "device/local_model.h"
 #include "device/servo_loop.h"
 #include "device/stats.h"
 #include "hapticpd/v1/haptic.grpc.pb.h"
@@ -55,6 +56,14 @@ namespace hapticpd::client {
 /// allocation.
 bool IrFromContactUpdate(const v1::ContactUpdate& update, const device::Pose& X_AP,
                          std::int64_t receive_time_ns, device::IntermediateRep* ir);
+
+/// Decodes a GeometryPatch into the device side's PatchDelta: "" or the
+/// problem (one line naming the field: arrays of the wrong length, a
+/// non-finite or out-of-range number, a body patch over
+/// `max_triangles_per_body`). Index ranges and what is held are checked
+/// when the patch is applied (device::PatchStore::Apply).
+std::string PatchDeltaFromProto(const v1::GeometryPatch& g, std::size_t max_triangles_per_body,
+                                device::PatchDelta* out);
 
 /// The servo loop's effects for a scene's declaration (the Welcome's
 /// scene_config; one that declares nothing means contact and torque), and
@@ -89,6 +98,17 @@ struct SessionOptions {
   /// (LinkOptionsProblem); the Session constructor throws SessionError
   /// otherwise.
   std::optional<LinkOptions> link;
+  /// The local contact model (device/local_model.h): the hello asks for
+  /// geometry patches and PD runs on them on the device side at the
+  /// proxy's newest pose. Needs a probe given by shape or mesh (the client
+  /// builds the same probe model as the server) and mode PDt or PDg;
+  /// otherwise the session runs without it and says why
+  /// (SessionStats::local_model_note).
+  bool local_model = false;
+  /// Most triangles held per body (PatchRequest.max_triangles_per_body).
+  std::uint32_t patch_max_triangles = 8192;
+  /// m, PatchRequest.min_margin (0: the server's default).
+  double patch_min_margin = 0;
 };
 
 /// What the emulated link did (SessionOptions::link), per direction.
@@ -117,6 +137,12 @@ struct SessionStats {
   std::string last_error;
   std::string session_id;  ///< of the current (or last) stream
   LinkStats link;
+  /// The local contact model: running, or why not; and what it did.
+  bool local_model = false;
+  std::string local_model_note;
+  device::LocalModelStats local;
+  std::uint64_t patches_received = 0;
+  double server_clock_offset_ms = 0;  ///< server steady clock - loop clock
 };
 
 class Session {
@@ -163,6 +189,10 @@ class Session {
   void Accept(const v1::ContactUpdate& u, std::int64_t now_ns);
   /// With an emulated link: hands due updates to Accept until `done`.
   void DeliverLoop(const std::atomic<bool>& done);
+  /// A patch that has arrived (directly, or out of the emulated link).
+  void AcceptPatch(const v1::GeometryPatch& g, std::int64_t now_ns);
+  /// Sets up the local contact model after the first welcome.
+  void StartLocalModel();
   /// Writes one pose to the stream (false: the stream is broken).
   bool WritePose(Stream& s, const device::ProxySample& x, v1::CoupleRequest* req);
 
@@ -184,7 +214,7 @@ class Session {
   struct Link {
     explicit Link(const LinkOptions& o) : poses(o, kLinkUp), updates(o, kLinkDown) {}
     DelayLine<device::ProxySample> poses;
-    DelayLine<v1::ContactUpdate> updates;
+    DelayLine<v1::CoupleResponse> updates;  // updates and patches, in order
   };
   std::unique_ptr<Link> link_;
 
@@ -193,6 +223,15 @@ class Session {
   static constexpr std::size_t kRing = 4096;
   std::array<std::atomic<std::uint64_t>, kRing> sent_seq_{};
   std::array<std::atomic<std::int64_t>, kRing> sent_ns_{};
+
+  // The local contact model (options_.local_model and usable), or none.
+  std::unique_ptr<device::LocalContactModel> local_;
+  device::IntermediateRep server_ir_;  // decoded server answer (reader/delivery thread)
+  // Round trip and server clock offset estimates (reader/delivery thread
+  // writes; the network thread reads the round trip for ProbePose).
+  std::atomic<double> rtt_estimate_us_{0};
+  double best_rtt_us_ = 0;
+  std::uint64_t since_best_ = 0;
 
   mutable std::mutex stats_mu_;
   SessionStats counters_;

@@ -121,6 +121,7 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
     return;
   }
   info->have_ir = true;
+  info->source = ir_.source;
   info->age_s = 1e-9 * static_cast<double>(now_ns - ir_.receive_time_ns);
   info->stale = info->age_s > params_.max_age_s;
   info->outside_validity = !InsideValidity(ir_, X_WP);

@@ -57,6 +57,9 @@ struct IntermediateRep {
   double validity_radius = 0;  ///< m from p_ref; <= 0: unbounded
   double validity_angle = 0;   ///< rad from R_ref; <= 0: unbounded
   double compute_time_us = 0;  ///< producer's PD time
+  /// Which model answered: 0 the server's PD answer, 1 the local patch
+  /// model (device/local_model.h); counted per tick in ServoStats.
+  std::uint8_t source = 0;
 };
 
 /// Adds a row to `ir`; when it already holds kMaxIrRows, the new row
@@ -115,6 +118,7 @@ struct IrEvalInfo {
   double fade = 0;   ///< fade gain in [0, 1]
   double blend = 1;  ///< progress of the current blend in [0, 1]
   double shift = 0;  ///< m the rows' surface is moved into the body (energy-neutral re-entry)
+  std::uint8_t source = 0;  ///< IntermediateRep::source of the IR rendered
   /// m, the deepest row at the proxy pose (PDg: the generalised target row);
   /// negative: the proxy is that far outside every row's surface. -inf
   /// without an IR or rows.

@@ -1,5 +1,7 @@
 #include "device/local_pd_source.h"
 
+#include "device/local_model.h"
+
 #include <algorithm>
 #include <chrono>
 
@@ -22,26 +24,8 @@ void LocalPdIrSource::Compute(const ProxySample& sample, IntermediateRep* ir) {
   pd::ContactModelOptions model_options;
   model_options.validity_fraction = options_.validity_fraction;
   pd::BuildContactModel(*probe_, X_WA, bodies_, result_, model_options, &model_);
-  ir->sequence = sample.sequence;
-  ir->sample_time_ns = sample.time_ns;
-  ir->X_WP_ref = sample.X_WP;
-  ir->use_target = false;
-  ir->num_rows = 0;
+  IrFromContactModel(model_, sample, X_PA().Inverse(), /*torque=*/true, ir);
   ir->compute_time_us = result_.time_us;
-  for (const pd::ContactRow& r : model_.rows) {
-    IrRow row{r.p_W, r.n_W, (r.p_W - model_.c_W).cross(r.n_W), r.depth, r.material.stiffness};
-    row.static_friction = r.material.static_friction;
-    row.dynamic_friction = r.material.dynamic_friction;
-    row.damping = r.material.damping;
-    AddIrRow(row, ir);
-  }
-  Vec6 W;
-  Mat6 K;
-  EvaluateIrRaw(*ir, sample.X_WP, &W, &K);
-  ir->W_ref.force = W.head<3>();
-  ir->W_ref.torque = W.tail<3>();
-  ir->validity_radius = model_.validity_radius;
-  ir->validity_angle = model_.validity_angle;
 }
 
 void LocalPdIrSource::Pump(ServoLoop* loop, std::int64_t now_ns, bool stalled) {

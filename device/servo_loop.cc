@@ -162,6 +162,13 @@ void ServoLoop::Tick(std::int64_t now_ns) {
     proxy_.w_W = w_WH;
   }
   r.link_gain = link_gain_;
+  if (!r.ir.have_ir || r.ir.fade <= 0 || link_gain_ <= 0) {
+    ++stats_.ticks_faded;
+  } else if (r.ir.source == 1) {
+    ++stats_.ticks_local;
+  } else {
+    ++stats_.ticks_server;
+  }
   r.proxy = proxy_;
   r.W_coupling = CouplingWrench(coupling_.gains, r.X_WH, v_WH, w_WH, proxy_, &r.clamped);
   if (r.clamped) ++stats_.clamped_ticks;

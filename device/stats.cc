@@ -79,7 +79,8 @@ std::string ServoStats::Summary() const {
       "tick compute p50 %.2f us p99 %.2f us max %.1f us\n"
       "IR updates %llu, age p50 %.2f ms p99 %.2f ms, stale ticks %llu, outside ticks %llu\n"
       "max force %.3f N torque %.4f N m, max dF %.4f N dtau %.5f N m per tick, clamped %llu\n"
-      "energy into hand %.6f J, passivity observer min %.6f J, device errors %llu",
+      "energy into hand %.6f J, passivity observer min %.6f J, device errors %llu\n"
+      "contact from: server %llu ticks, local patch %llu, none or faded %llu",
       static_cast<unsigned long long>(ticks), period_us.mean(), period_us.stddev(),
       period_us.Quantile(0.5), period_us.Quantile(0.99), period_us.Quantile(0.999), period_us.max(),
       static_cast<unsigned long long>(late_ticks), compute_us.Quantile(0.5),
@@ -88,7 +89,8 @@ std::string ServoStats::Summary() const {
       static_cast<unsigned long long>(stale_ticks), static_cast<unsigned long long>(outside_ticks),
       max_force, max_torque, max_dforce, max_dtorque,
       static_cast<unsigned long long>(clamped_ticks), energy_into_hand_j, passivity_min_j,
-      static_cast<unsigned long long>(device_errors));
+      static_cast<unsigned long long>(device_errors), static_cast<unsigned long long>(ticks_server),
+      static_cast<unsigned long long>(ticks_local), static_cast<unsigned long long>(ticks_faded));
   return buf;
 }
 

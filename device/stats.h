@@ -55,7 +55,12 @@ struct ServoStats {
   std::uint64_t clamped_ticks = 0;  ///< ticks whose coupling stretch was clamped
   std::uint64_t device_errors = 0;
   std::uint64_t nonfinite_resets =
-      0;                   ///< ticks whose proxy went non-finite (put back on the handle)
+      0;  ///< ticks whose proxy went non-finite (put back on the handle)
+  /// Ticks by the model their contact came from: the server's answer, the
+  /// local patch model, or none (no IR, or faded out to zero).
+  std::uint64_t ticks_server = 0;
+  std::uint64_t ticks_local = 0;
+  std::uint64_t ticks_faded = 0;
   double max_force = 0;    ///< N, commanded
   double max_torque = 0;   ///< N m, commanded
   double max_dforce = 0;   ///< N per tick

@@ -66,6 +66,7 @@ struct TickSample {
   double handle_speed = 0;
   int active_rows = 0;
   bool have_ir = false, stale = false, outside = false;
+  std::uint8_t source = 0;  ///< device::IntermediateRep::source
 };
 
 /// A script's scene, probe and hand, and the true geometry to measure
@@ -283,8 +284,10 @@ Scenario TwistScenario() {
 
 /// Runs one scenario at one delay in real time; returns the ticks.
 std::vector<TickSample> RunOnce(const Scenario& sc, int port, double delay_ms, double jitter_ms,
-                                double time_scale, std::uint64_t seed, DelayRun* run) {
+                                double time_scale, std::uint64_t seed, bool local_model,
+                                DelayRun* run) {
   client::SessionOptions so;
+  so.local_model = local_model;
   so.server = "127.0.0.1:" + std::to_string(port);
   so.hello = sc.hello_probe;
   so.hello.set_scene_id(sc.scene_id);
@@ -340,6 +343,7 @@ std::vector<TickSample> RunOnce(const Scenario& sc, int port, double delay_ms, d
     s.have_ir = r.ir.have_ir;
     s.stale = r.ir.stale;
     s.outside = r.ir.outside_validity;
+    s.source = r.ir.source;
   }
   session.Stop();
   const device::ServoStats& st = loop.stats();
@@ -349,6 +353,10 @@ std::vector<TickSample> RunOnce(const Scenario& sc, int port, double delay_ms, d
   run->rtt_p50_ms = 1e-3 * ss.rtt_p50_us;
   run->updates = ss.updates;
   run->late_ticks = st.late_ticks;
+  const double span_s = ticks / 1000.0;
+  run->patch_bytes_per_s = static_cast<double>(ss.local.patch_bytes) / span_s;
+  run->local_rate_hz = ss.local.rate_hz;
+  run->local_p99_us = ss.local.compute_p99_us;
   // The probe mesh frame A rides on P: keep X_WA in the samples.
   for (TickSample& s : out) {
     s.X_WH = s.X_WH * X_PA;
@@ -392,7 +400,7 @@ class DepthProbe {
 void Measure(const Scenario& sc, const std::vector<TickSample>& ticks, DelayRun* run) {
   DepthProbe handle(sc), proxy(sc);
   double sx = 0, sy = 0, sxx = 0, sxy = 0, force_sum = 0;
-  int n = 0, rows = 0, faded = 0, none = 0;
+  int n = 0, rows = 0, patch = 0, faded = 0, none = 0;
   Vec3 last_v = Vec3::Zero(), last_F = Vec3::Zero();
   Vec3 last_p = ticks.empty() ? Vec3::Zero() : ticks[0].X_WH.t;
   double last_t = 0;
@@ -426,6 +434,8 @@ void Measure(const Scenario& sc, const std::vector<TickSample>& ticks, DelayRun*
       force_sum += F;
       if (s.stale || s.outside) {
         ++faded;
+      } else if (s.active_rows > 0 && s.source == 1) {
+        ++patch;
       } else if (s.active_rows > 0) {
         ++rows;
       } else {
@@ -454,6 +464,7 @@ void Measure(const Scenario& sc, const std::vector<TickSample>& ticks, DelayRun*
   run->mean_force = n > 0 ? force_sum / n : 0;
   if (n > 0) {
     run->from_rows = static_cast<double>(rows) / n;
+    run->from_patch = static_cast<double>(patch) / n;
     run->faded = static_cast<double>(faded) / n;
     run->no_rows = static_cast<double>(none) / n;
   }
@@ -597,7 +608,10 @@ DelayReport RunDelayBench(const DelayBenchOptions& o, std::ostream* log) {
   report.notes.push_back(
       "twist: two box:0.1,0.02,0.02 walls, 1.5 mm clearance each side of the "
       "stick; down 10 mm, twist 0.15 rad about the vertical and back");
-  report.notes.push_back("patches: no local contact model exists yet: 0 patch bytes, 0 % patch");
+  report.notes.push_back(o.local_model
+                             ? "device sessions with the local contact model (geometry patches)"
+                             : "device sessions without the local contact model (server answers "
+                               "only)");
   const auto level = spdlog::get_level();
   spdlog::set_level(spdlog::level::warn);  // the in-process server's info lines
   struct Restore {
@@ -621,8 +635,8 @@ DelayReport RunDelayBench(const DelayBenchOptions& o, std::ostream* log) {
         *log << "  " << sc.name << " at " << delay << " ms +-" << run.jitter_ms << " ms ..."
              << std::endl;
       }
-      const std::vector<TickSample> ticks =
-          RunOnce(sc, server.port(), delay, run.jitter_ms, o.time_scale, o.seed, &run);
+      const std::vector<TickSample> ticks = RunOnce(sc, server.port(), delay, run.jitter_ms,
+                                                    o.time_scale, o.seed, o.local_model, &run);
       Measure(sc, ticks, &run);
       report.runs.push_back(std::move(run));
     }
@@ -671,6 +685,8 @@ nlohmann::json ToJson(const DelayReport& report) {
                          {"free_drag_t_s", r.free_drag_t_s},
                          {"free_ticks_after_late", r.free_ticks_after_late},
                          {"patch_bytes_per_s", r.patch_bytes_per_s},
+                         {"local_rate_hz", r.local_rate_hz},
+                         {"local_p99_us", r.local_p99_us},
                          {"answered",
                           {{"server_rows", r.from_rows},
                            {"local_patch", r.from_patch},
@@ -710,8 +726,8 @@ void PrintDelay(std::ostream& os, const DelayReport& report) {
         std::isfinite(r.stiffness) ? Fmt("%.0f", r.stiffness).c_str() : "n/a",
         std::isfinite(r.surface_error) ? Fmt("%+.2f", 1e3 * r.surface_error).c_str() : "n/a",
         1e3 * r.handle_max_depth, 1e3 * r.proxy_max_depth, 1e3 * r.passivity_min_j,
-        1e3 * r.energy_into_hand_j, r.free_drag, "n/a", 100 * r.from_rows, 100 * r.from_patch,
-        100 * r.faded, 100 * r.no_rows, r.rtt_p50_ms);
+        1e3 * r.energy_into_hand_j, r.free_drag, Fmt("%.0fk", 1e-3 * r.patch_bytes_per_s).c_str(),
+        100 * r.from_rows, 100 * r.from_patch, 100 * r.faded, 100 * r.no_rows, r.rtt_p50_ms);
     os << line;
   }
   os << "\n(jitter +-20% of the delay; peak/mean |F| commanded, mean over the ticks with the "
@@ -720,7 +736,7 @@ void PrintDelay(std::ostream& os, const DelayReport& report) {
         "run, mm, + deeper; hand/proxy = deepest penetration of the handle's / the proxy's "
         "probe below the true surface; obs = passivity observer minimum; E in = energy into "
         "the hand; free = max |F| with no row and the proxy > 1 mm from every body; patch = "
-        "patch bytes/s (no patches yet); rows/patch/faded/none = which model answered on the "
+        "patch kB/s; rows/patch/faded/none = which model answered on the "
         "contact ticks; rtt = round trip p50)\n";
   if (!report.goals.empty()) {
     os << "\ngoals (against the 0 ms run of this invocation):\n";

@@ -32,6 +32,9 @@ struct DelayBenchOptions {
   std::string models;       ///< folder with stanford-bunny.obj ("": the torus knot)
   double time_scale = 1.0;  ///< multiplies every script's duration (tests: small)
   std::uint64_t seed = 1;   ///< of the emulated link's draws
+  /// Run the device sessions with the local contact model
+  /// (client::SessionOptions::local_model); false: server answers only.
+  bool local_model = true;
 };
 
 /// One script at one delay.
@@ -61,10 +64,12 @@ struct DelayRun {
   /// Free ticks left out: within 30 ticks of one the machine delayed by
   /// more than 3 ms (the hand moved on in real time; not the renderer's).
   int free_ticks_after_late = 0;
-  double patch_bytes_per_s = 0;  ///< geometry patches streamed (none exist yet)
+  double patch_bytes_per_s = 0;  ///< geometry patches streamed
+  double local_rate_hz = 0;      ///< local model answers per second
+  double local_p99_us = 0;       ///< local model PD time p99
   /// Which model answered on the contact ticks (fractions): the server's
-  /// rows, a local geometry patch (none yet), rows faded (stale or outside
-  /// their validity), or no row at all.
+  /// rows, the local geometry patch, rows faded (stale or outside their
+  /// validity), or no row at all.
   double from_rows = 0, from_patch = 0, faded = 0, no_rows = 0;
   double rtt_p50_ms = 0;
   std::uint64_t updates = 0, late_ticks = 0;
