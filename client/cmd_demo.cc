@@ -46,6 +46,7 @@ struct DemoOptions {
   std::string script = "slide";  // with --scene
   double travel = 0.01;          // with --scene: m the hand goes down from the start
   client::LinkOptions link;      // --delay, --jitter, --loss
+  std::string local_model = "on";
 };
 
 Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
@@ -94,6 +95,7 @@ struct RunSpec {
   /// The probe's lowest point starts 5 mm above this point.
   Vec3 above = Vec3::Zero();
   std::optional<client::LinkOptions> link;  // an emulated wide-area link
+  bool local_model = true;                  // client::SessionOptions::local_model
 };
 
 const char* ModeLabel(const std::string& mode) {
@@ -117,6 +119,7 @@ Run RunMode(const RunSpec& spec, double duration) {
   }
   so.hello.set_client_name("hapticpd demo (" + mode + ")");
   so.link = spec.link;
+  so.local_model = spec.local_model;
   client::Session session(so);
   try {
     session.Connect();
@@ -247,6 +250,10 @@ void RunDemo(const DemoOptions& o) {
     throw CommandError("demo: " + problem);
   }
   RunSpec base;
+  if (o.local_model != "on" && o.local_model != "off") {
+    throw CommandError("demo: --local-model: expected on or off, got '" + o.local_model + "'");
+  }
+  base.local_model = o.local_model == "on";
   // No delay, jitter or loss: no emulator at all (the session's direct path).
   if (o.link.delay_ms > 0 || o.link.jitter_ms > 0 || o.link.loss > 0) base.link = o.link;
   std::optional<server::SceneFile> file;
@@ -417,6 +424,10 @@ void RegisterDemo(CLI::App& app) {
   cmd->add_option("--duration", o->duration, "Seconds per mode")->capture_default_str();
   cmd->add_option("--out", o->out, "Folder for trace.csv and force.svg")->capture_default_str();
   AddLinkOptions(cmd, &o->link);
+  cmd->add_option("--local-model", o->local_model,
+                  "on: PD on geometry patches on the device side at the proxy's newest pose; "
+                  "off: the server's answers only")
+      ->capture_default_str();
   cmd->callback([o] { RunDemo(*o); });
 }
 

@@ -45,6 +45,8 @@ struct DeviceOptions {
   std::string record;
   bool json = false;
   client::LinkOptions link;  // --delay, --jitter, --loss
+  std::string local_model = "on";
+  std::uint32_t patch_triangles = 8192;
 };
 
 std::shared_ptr<grpc::ChannelCredentials> Credentials(const ConnectionOptions& o) {
@@ -139,6 +141,15 @@ void RunDevice(const DeviceOptions& o) {
   if (const std::string problem = client::LinkOptionsProblem(o.link); !problem.empty()) {
     throw CommandError("device: " + problem);
   }
+  if (o.local_model != "on" && o.local_model != "off") {
+    throw CommandError("device: --local-model: expected on or off, got '" + o.local_model + "'");
+  }
+  so.local_model = o.local_model == "on";
+  if (o.patch_triangles < 1 || o.patch_triangles > 1'000'000) {
+    throw CommandError("device: --patch-triangles: expected 1 to 1000000, got " +
+                       std::to_string(o.patch_triangles));
+  }
+  so.patch_max_triangles = o.patch_triangles;
   // No delay, jitter or loss: no emulator at all (the session's direct path).
   if (o.link.delay_ms > 0 || o.link.jitter_ms > 0 || o.link.loss > 0) so.link = o.link;
   device::HandScript script = device::HandScript::kHold;
@@ -242,6 +253,20 @@ void RunDevice(const DeviceOptions& o) {
   j["passivity_min_j"] = s.passivity_min_j;
   j["connects"] = ss.connects;
   j["disconnects"] = ss.disconnects;
+  j["contact_from"] = {
+      {"server", s.ticks_server}, {"local_patch", s.ticks_local}, {"none_or_faded", s.ticks_faded}};
+  j["local_model"] = {{"state", ss.local_model_note},
+                      {"patches", ss.local.patches},
+                      {"bad_patches", ss.local.bad_patches},
+                      {"patch_bytes", ss.local.patch_bytes},
+                      {"triangles_held", ss.local.triangles_held},
+                      {"answers", ss.local.local_answers},
+                      {"server_deeper", ss.local.server_deeper},
+                      {"uncovered", ss.local.uncovered},
+                      {"rate_hz", ss.local.rate_hz},
+                      {"pd_p50_us", ss.local.compute_p50_us},
+                      {"pd_p99_us", ss.local.compute_p99_us}};
+  if (!ss.local.last_problem.empty()) j["local_model"]["last_problem"] = ss.local.last_problem;
   if (ss.link.active) {
     j["link"] = {{"delay_ms", o.link.delay_ms},
                  {"jitter_ms", o.link.jitter_ms},
@@ -278,6 +303,26 @@ void RunDevice(const DeviceOptions& o) {
                 static_cast<unsigned long long>(ss.link.updates.lost + ss.link.updates.overflow),
                 static_cast<unsigned long long>(ss.link.updates.sent));
   }
+  std::printf(
+      "  model  contact from the server %llu ticks, local patch %llu, none %llu; local "
+      "model %s",
+      static_cast<unsigned long long>(s.ticks_server),
+      static_cast<unsigned long long>(s.ticks_local),
+      static_cast<unsigned long long>(s.ticks_faded), ss.local_model_note.c_str());
+  if (ss.local_model) {
+    std::printf(
+        ": %llu patches (%.0f kB, %zu triangles held), %.0f answers/s, PD p50 %.0f us "
+        "p99 %.0f us",
+        static_cast<unsigned long long>(ss.local.patches), 1e-3 * ss.local.patch_bytes,
+        ss.local.triangles_held, ss.local.rate_hz, ss.local.compute_p50_us,
+        ss.local.compute_p99_us);
+    if (ss.local.bad_patches > 0) {
+      std::printf(", %llu bad patches (last: %s)",
+                  static_cast<unsigned long long>(ss.local.bad_patches),
+                  ss.local.last_problem.c_str());
+    }
+  }
+  std::printf("\n");
   if (ss.disconnects > 0) {
     std::printf("  %llu disconnects, last: %s\n", static_cast<unsigned long long>(ss.disconnects),
                 ss.last_error.c_str());
@@ -308,6 +353,14 @@ void RegisterDevice(CLI::App& app) {
   cmd->add_option("--record", o->record, "Write the device trajectory to this CSV");
   cmd->add_flag("--json", o->json, "Print the statistics as one JSON object");
   AddLinkOptions(cmd, &o->link);
+  cmd->add_option("--local-model", o->local_model,
+                  "on: ask for geometry patches and run PD on them on the device side at the "
+                  "proxy's newest pose (model-mediated rendering; needs --probe); off: render "
+                  "the server's answers only")
+      ->capture_default_str();
+  cmd->add_option("--patch-triangles", o->patch_triangles,
+                  "Most patch triangles held per body (the server may cut it lower)")
+      ->capture_default_str();
   cmd->callback([o] { RunDevice(*o); });
 }
 
