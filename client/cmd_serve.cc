@@ -118,6 +118,11 @@ void RegisterServe(CLI::App& app) {
   cmd->add_option("--max-update-torque", s.limits.max_update_torque, "N m: likewise for the torque")
       ->check(CLI::Range(1e-3, 1e9))
       ->capture_default_str();
+  cmd->add_option("--max-patch-triangles", s.limits.max_patch_triangles,
+                  "Triangles of one body a device session's geometry patches hold at most "
+                  "(a client asking for more gets this many)")
+      ->check(CLI::Range(std::size_t{1}, std::size_t{1} << 22))
+      ->capture_default_str();
   cmd->add_option("--idle-timeout", s.limits.idle_timeout_s,
                   "Seconds: a device session that sends nothing for this long, or an observer "
                   "whose write has not completed for this long, is ended (0: never)")

@@ -1,8 +1,24 @@
 #include "server/scene.h"
 
 #include <algorithm>
+#include <cmath>
+
+#include "server/convert.h"
 
 namespace hapticpd::server {
+
+bool Moving(const BodyState& b) { return !b.v_W.isZero(0.0) || !b.w_W.isZero(0.0); }
+
+Pose PoseAt(const BodyState& b, std::int64_t t_ns) {
+  if (!Moving(b)) return b.X_WB;
+  const double dt = static_cast<double>(t_ns - b.pose_time_ns) * 1e-9;
+  Pose X = b.X_WB;
+  X.t += b.v_W * dt;
+  const Vec3 theta = b.w_W * dt;  // rotation vector, W
+  const double angle = theta.norm();
+  if (angle > 0) X.R = Eigen::AngleAxisd(angle, theta / angle).toRotationMatrix() * X.R;
+  return X;
+}
 
 const BodyState* SceneSnapshot::Find(const std::string& id) const {
   for (const BodyState& b : bodies) {
@@ -63,6 +79,7 @@ grpc::Status Scene::AddBody(BodyState body, std::size_t max_bodies, BodyState* a
       return s;
     }
   }
+  if (body.pose_time_ns == 0) body.pose_time_ns = NowNs();
   auto next = std::make_shared<SceneSnapshot>(*cur);
   next->revision = cur->revision + 1;
   next->structure_revision = cur->structure_revision + 1;
@@ -94,6 +111,7 @@ grpc::Status Scene::MoveBody(const std::string& id, const Pose& X_WB, const Vec3
     nb.X_WB = X_WB;
     nb.v_W = v_W ? *v_W : Vec3::Zero();
     nb.w_W = w_W ? *w_W : Vec3::Zero();
+    nb.pose_time_ns = NowNs();
     if (hook) {
       if (auto s = hook({&nb, next->revision, next_body_number_}); !s.ok()) return s;
     }

@@ -31,12 +31,26 @@ struct BodyState {
   std::string id;         ///< unique in the scene
   std::string label;
   pd::ModelPtr model;
-  Pose X_WB;
-  Vec3 v_W = Vec3::Zero();  ///< linear velocity (m/s), informational
-  Vec3 w_W = Vec3::Zero();  ///< angular velocity (rad/s), informational
+  /// The body's motion: at server steady-clock time t it is at
+  /// PoseAt(*this, t), X_WB carried along at v_W and turning at w_W from
+  /// pose_time_ns on. Device sessions render it there and send the same
+  /// four numbers in their geometry patches.
+  Pose X_WB;                ///< at pose_time_ns
+  Vec3 v_W = Vec3::Zero();  ///< linear velocity of the mesh frame's origin (m/s), W
+  Vec3 w_W = Vec3::Zero();  ///< angular velocity (rad/s), W
+  /// Server steady clock (ns) when X_WB was set; Scene::AddBody stamps it
+  /// when left 0, Scene::MoveBody always.
+  std::int64_t pose_time_ns = 0;
   pd::Material material;
   bool movable = false;
 };
+
+/// The body has a non-zero velocity (its pose changes with time).
+bool Moving(const BodyState& b);
+/// The body's pose at server steady-clock time `t_ns`: translation
+/// X_WB.t + v_W dt, rotation exp([w_W] dt) X_WB.R (turned about W's axes),
+/// dt = t_ns - pose_time_ns (negative before it). X_WB itself when at rest.
+Pose PoseAt(const BodyState& b, std::int64_t t_ns);
 
 struct SceneSnapshot {
   std::uint64_t revision = 0;            ///< bumps on every change

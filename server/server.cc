@@ -462,6 +462,8 @@ HapticServer::Counts HapticServer::counts() const {
   c.publishers = m.publishers ? m.publishers->running() : 0;
   c.active_calls = m.core.active_calls();
   c.updates_sent = m.core.stats.updates_sent.load();
+  c.patches_sent = m.core.stats.patches_sent.load();
+  c.patch_bytes = m.core.stats.patch_bytes.load();
   c.observer_frames_sent = m.core.stats.observer_frames_sent.load();
   c.observer_frames_dropped = m.core.stats.observer_frames_dropped.load();
   c.pd_calls = m.core.stats.pd_calls.load();

@@ -33,6 +33,11 @@ struct Limits {
   double max_update_force = 1e4;
   double max_update_torque = 1e3;
 
+  /// Most triangles of one body a device session's client holds through
+  /// its geometry patches (PatchRequest.max_triangles_per_body is cut to
+  /// it): bounds the patches' size and the client's memory.
+  std::size_t max_patch_triangles = 8192;
+
   /// A device session that sends no message for this long ends with
   /// DEADLINE_EXCEEDED, and an observer whose write has not completed for
   /// this long is cancelled: either frees its slot. Behind a load balancer
@@ -132,6 +137,8 @@ class HapticServer {
     int active_calls = 0;  ///< streaming reactors not yet done
     int publishers = 0;    ///< per-scene observer publisher threads running
     std::uint64_t updates_sent = 0;
+    std::uint64_t patches_sent = 0;  ///< geometry patches written to device sessions
+    std::uint64_t patch_bytes = 0;   ///< their serialized size
     std::uint64_t observer_frames_sent = 0;
     std::uint64_t observer_frames_dropped = 0;
     std::uint64_t pd_calls = 0;             ///< PD queries run by device sessions

@@ -5,6 +5,10 @@
 //   worker: take newest pose, load scene snapshot, PD, build ContactUpdate
 //   worker  --update-->  writer: at most one write in flight; an update not
 //                        yet sent is replaced by a newer one
+//   worker  --patch-->   writer: a geometry patch (sessions that asked for
+//                        them) waits in its own slot, written before the
+//                        pending update, and is never replaced: the worker
+//                        cuts the next one only once it has been written
 #include <grpcpp/grpcpp.h>
 
 #include <cmath>
@@ -109,6 +113,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
               pose_.X_WA = X;
               pose_.client_time_ns = req_.pose().client_time_ns();
               pose_.rx_ns = rx;
+              pose_.round_trip_us = SanitizeRoundTripUs(req_.pose().round_trip_us());
             }
           }
         }
@@ -129,9 +134,22 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     std::lock_guard lock(wr_mu_);
     in_flight_ = false;
     if (ok && sent_update_) core_->stats.updates_sent.fetch_add(1, std::memory_order_relaxed);
+    if (sent_patch_) {
+      patch_outstanding_ = false;
+      if (ok) {
+        core_->stats.patches_sent.fetch_add(1, std::memory_order_relaxed);
+        core_->stats.patch_bytes.fetch_add(sent_patch_bytes_, std::memory_order_relaxed);
+      }
+    }
     if (!ok) {
       FinishLocked(grpc::Status(grpc::StatusCode::CANCELLED, "client went away"), true);
       Stop(grpc::Status::CANCELLED);
+      return;
+    }
+    if (has_pending_patch_) {  // a patch goes before the (newer) pending update
+      has_pending_patch_ = false;
+      writing_.Swap(&pending_patch_);
+      StartWriteLocked();
       return;
     }
     if (has_pending_) {  // also before a graceful finish: the last answer is delivered
@@ -182,6 +200,8 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   void StartWriteLocked() {
     if (writing_.has_update()) writing_.mutable_update()->set_server_send_time_ns(NowNs());
     sent_update_ = writing_.has_update();
+    sent_patch_ = writing_.has_patch();
+    if (sent_patch_) sent_patch_bytes_ = writing_.ByteSizeLong();
     in_flight_ = true;
     GrpcStart(this, [&] { StartWrite(&writing_); });
   }
@@ -200,6 +220,28 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     }
   }
 
+  /// Hands a geometry patch to the writer (swapping it out of *msg). It is
+  /// never replaced: the worker hands over the next one only once
+  /// PatchOutstanding() is false.
+  void SendPatch(v1::CoupleResponse* msg) {
+    std::lock_guard lock(wr_mu_);
+    if (finish_wanted_ || finish_called_) return;
+    patch_outstanding_ = true;
+    if (!in_flight_) {
+      writing_.Swap(msg);
+      StartWriteLocked();
+    } else {
+      pending_patch_.Swap(msg);
+      has_pending_patch_ = true;
+    }
+  }
+
+  /// A patch handed to the writer has not been written yet.
+  bool PatchOutstanding() {
+    std::lock_guard lock(wr_mu_);
+    return patch_outstanding_;
+  }
+
   /// Under wr_mu_: Finish once, after the write in flight (and, for OK, the
   /// pending answer) unless forced.
   void FinishLocked(const grpc::Status& status, bool force) {
@@ -207,7 +249,10 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     if (!finish_wanted_) {
       finish_wanted_ = true;
       finish_status_ = status;
-      if (!status.ok()) has_pending_ = false;  // an error ends the stream without more answers
+      if (!status.ok()) {  // an error ends the stream without more answers
+        has_pending_ = false;
+        has_pending_patch_ = false;
+      }
     }
     if (!in_flight_ || force) {
       finish_called_ = true;
@@ -356,6 +401,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     }
     if (auto s = Hello(); !s.ok()) return s;
     v1::CoupleResponse msg;
+    v1::CoupleResponse patch_msg;
     auto next_allowed = std::chrono::steady_clock::now();
     for (;;) {
       MailPose p;
@@ -386,6 +432,10 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
         next_allowed = std::chrono::steady_clock::now() + worker_pd_.min_period();
       Compute(p, superseded, &msg);
       Send(&msg);
+      if (worker_pd_.patches_enabled() && !PatchOutstanding() &&
+          worker_pd_.Patch(p, patch_msg.mutable_patch())) {
+        SendPatch(&patch_msg);
+      }
     }
   }
 
@@ -418,12 +468,17 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   std::mutex wr_mu_;
   bool in_flight_ = false;
   bool sent_update_ = false;
+  bool sent_patch_ = false;
+  std::size_t sent_patch_bytes_ = 0;
   bool has_pending_ = false;
+  bool has_pending_patch_ = false;
+  bool patch_outstanding_ = false;  ///< handed to the writer, not yet written
   bool finish_wanted_ = false;
   bool finish_called_ = false;
   grpc::Status finish_status_;
   v1::CoupleResponse writing_;
   v1::CoupleResponse pending_;
+  v1::CoupleResponse pending_patch_;
 
   // Worker-only state.
   SessionWorker worker_pd_;

@@ -125,6 +125,7 @@ grpc::Status SessionWorker::Start(const v1::Hello& h, const ScenePtr& scene, v1:
       return InvalidArgument("hello.probe", "give probe_body_id, probe_mesh or probe_shape");
   }
   if (mesh) probe_ = pd::MakeModel(std::move(*mesh));  // on the session's worker thread
+  if (auto s = StartPatches(h); !s.ok()) return s;
   scene_ = scene;
   const pd::Mesh& pm = probe_->mesh();
   welcome->set_protocol_version(kProtocolVersion);
@@ -146,12 +147,35 @@ grpc::Status SessionWorker::Start(const v1::Hello& h, const ScenePtr& scene, v1:
   return grpc::Status::OK;
 }
 
+double SanitizeRoundTripUs(double us) {
+  if (!std::isfinite(us) || us < 0) return 0;
+  return std::min(us, kMaxRoundTripUs);
+}
+
+grpc::Status SessionWorker::StartPatches(const v1::Hello& h) {
+  if (!h.has_patches()) return grpc::Status::OK;
+  const v1::PatchRequest& r = h.patches();
+  static constexpr wire::Range kMinMargin{0, kMaxPatchMinMargin, "m"};
+  if (auto s = wire::CheckRange(r.min_margin(), kMinMargin, "hello.patches.min_margin"); !s.ok()) {
+    return s;
+  }
+  if (!r.enabled()) return grpc::Status::OK;
+  const std::size_t server_limit = std::max<std::size_t>(1, limits_.max_patch_triangles);
+  const std::size_t limit = r.max_triangles_per_body() == 0
+                                ? server_limit
+                                : std::min<std::size_t>(r.max_triangles_per_body(), server_limit);
+  patches_ = std::make_unique<PatchBuilder>(probe_, limit, r.min_margin());
+  return grpc::Status::OK;
+}
+
 /// Rebuilds the session's view of the scene when the snapshot changed: the
 /// bodies (minus the probe's own), effective materials, and the per-body
 /// coherence state carried over by body uid.
 void SessionWorker::SyncBodies(const SnapshotPtr& snap) {
   if (snap == synced_) return;
   bodies_.clear();
+  states_.clear();
+  any_moving_ = false;
   std::vector<std::uint64_t> uids;
   std::vector<pd::PdQueryData> data;
   std::vector<pd::PdgQueryData> data_pdg;
@@ -164,6 +188,8 @@ void SessionWorker::SyncBodies(const SnapshotPtr& snap) {
           SeriesStiffness(probe_material_.rotational_stiffness, b.material.rotational_stiffness);
     }
     bodies_.push_back(std::move(sb));
+    states_.push_back(&b);
+    any_moving_ = any_moving_ || Moving(b);
     uids.push_back(b.uid);
     body_ids_.resize(bodies_.size());
     body_ids_.back() = b.id;
@@ -187,6 +213,24 @@ void SessionWorker::SyncBodies(const SnapshotPtr& snap) {
   synced_ = snap;
 }
 
+void SessionWorker::MoveBodies(std::int64_t t_ns) {
+  if (!any_moving_) return;
+  for (std::size_t i = 0; i < bodies_.size(); ++i) {
+    if (Moving(*states_[i])) bodies_[i].X_WB = PoseAt(*states_[i], t_ns);
+  }
+}
+
+bool SessionWorker::Patch(const MailPose& p, v1::GeometryPatch* out) {
+  if (!patches_) return false;
+  SyncBodies(scene_->snapshot());
+  patch_bodies_.clear();
+  for (std::size_t i = 0; i < bodies_.size(); ++i) {
+    patch_bodies_.push_back({states_[i], &bodies_[i].material});
+  }
+  const PatchProbe probe{p.X_WA, p.rx_ns, p.round_trip_us * 1e-6};
+  return patches_->Build(probe, synced_->revision, patch_bodies_, out);
+}
+
 AnswerInfo SessionWorker::Answer(const MailPose& p, std::uint32_t superseded,
                                  v1::ContactUpdate* u) {
   AnswerInfo info;
@@ -199,6 +243,7 @@ AnswerInfo SessionWorker::Answer(const MailPose& p, std::uint32_t superseded,
   u->set_poses_superseded(superseded);
   const SnapshotPtr snap = scene_->snapshot();
   u->set_scene_revision(snap->revision);
+  if (patches_) patches_->Observe(p.X_WA, p.client_time_ns, p.rx_ns);
   const pd::ContactModelOptions options;
   if (mode_ == v1::PD_MODE_NONE || !needs_pd_) {
     pd::EmptyContactModel(*probe_, p.X_WA, options, &model_);
@@ -209,6 +254,7 @@ AnswerInfo SessionWorker::Answer(const MailPose& p, std::uint32_t superseded,
     return info;
   }
   SyncBodies(snap);
+  MoveBodies(p.rx_ns);
   pd::ComputeScenePd(
       mode_ == v1::PD_MODE_PDG ? pd::PdMode::kGeneralized : pd::PdMode::kTranslational, *probe_,
       p.X_WA, bodies_, request_, &pd_data_, &result_,

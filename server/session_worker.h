@@ -11,12 +11,14 @@
 
 #include <chrono>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "hapticpd/v1/haptic.pb.h"
 #include "pd/contact_model.h"
 #include "pd/scene_pd.h"
+#include "server/patch_builder.h"
 #include "server/scene.h"
 #include "server/server.h"
 
@@ -30,7 +32,20 @@ struct MailPose {
   Pose X_WA;
   std::int64_t client_time_ns = 0;
   std::int64_t rx_ns = 0;  ///< server steady clock when received
+  /// The client's reported round trip (us), >= 0 and at most
+  /// kMaxRoundTripUs; 0 when not known or not usable.
+  double round_trip_us = 0;
 };
+
+/// Longest round trip (us) a patch's margin is sized for; longer reports
+/// count as this.
+inline constexpr double kMaxRoundTripUs = 10e6;
+/// Largest PatchRequest.min_margin (m) a hello may ask for.
+inline constexpr double kMaxPatchMinMargin = 1.0;
+
+/// ProbePose.round_trip_us as a MailPose takes it: a non-finite or negative
+/// report is "not known" (0), a longer one than kMaxRoundTripUs is cut.
+double SanitizeRoundTripUs(double us);
 
 /// What one answer did, for the caller's counters, log and observers.
 struct AnswerInfo {
@@ -56,7 +71,17 @@ class SessionWorker {
   /// contact model, encoded as a ContactUpdate; an answer holding a
   /// non-finite number or a force (torque) over the limits is replaced by
   /// zero force and no rows (CONTACT_STATUS_WITHHELD).
+  /// Moving bodies are where PoseAt puts them at p.rx_ns.
   AnswerInfo Answer(const MailPose& p, std::uint32_t superseded, v1::ContactUpdate* u);
+
+  /// The session's next geometry patch, after the answer to `p`: false when
+  /// the hello did not ask for patches or none is due (see
+  /// PatchBuilder::Build). Each patch is a delta on the ones before: the
+  /// caller must send every one, in order; it asks again only once the
+  /// previous one is written.
+  bool Patch(const MailPose& p, v1::GeometryPatch* out);
+  bool patches_enabled() const { return patches_ != nullptr; }
+  const PatchBuilder* patch_builder() const { return patches_.get(); }
 
   /// Minimum time between answers (Hello.max_rate_hz); zero: unlimited.
   std::chrono::nanoseconds min_period() const { return min_period_; }
@@ -65,6 +90,9 @@ class SessionWorker {
 
  private:
   void SyncBodies(const SnapshotPtr& snap);
+  /// Puts the moving bodies where they are at `t_ns`.
+  void MoveBodies(std::int64_t t_ns);
+  grpc::Status StartPatches(const v1::Hello& h);
   /// Replaces `u` by the withheld answer when it is unfit; returns why.
   const char* Withhold(v1::ContactUpdate* u) const;
 
@@ -83,6 +111,10 @@ class SessionWorker {
   std::vector<pd::SceneBody> bodies_;
   std::vector<std::string> body_ids_;
   std::vector<std::uint64_t> uids_;
+  std::vector<const BodyState*> states_;  ///< in synced_, per body
+  bool any_moving_ = false;
+  std::unique_ptr<PatchBuilder> patches_;
+  std::vector<PatchBody> patch_bodies_;
   pd::ScenePdData pd_data_;
   pd::ScenePdResult result_;
   pd::PenetrationRequest request_;

@@ -47,6 +47,8 @@ class LatencyHistogram {
 struct Stats {
   std::atomic<std::uint64_t> updates_sent{0};
   std::atomic<std::uint64_t> updates_replaced{0};  ///< unsent answers replaced by newer ones
+  std::atomic<std::uint64_t> patches_sent{0};      ///< geometry patches written
+  std::atomic<std::uint64_t> patch_bytes{0};       ///< their serialized size
   std::atomic<std::uint64_t> poses_superseded{0};  ///< poses replaced before PD started
   std::atomic<std::uint64_t> observer_frames_sent{0};
   std::atomic<std::uint64_t> observer_frames_dropped{0};

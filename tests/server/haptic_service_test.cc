@@ -3,6 +3,8 @@
 // validation, the session limit, and scene deletion.
 #include <cmath>
 
+#include "pd/shapes.h"
+#include "tests/server/patch_client.h"
 #include "tests/server/server_harness.h"
 #include "tests/test_util.h"
 
@@ -348,6 +350,58 @@ TEST_P(HapticServiceTest, DeletingTheSceneEndsItsSessions) {
   }
   const auto st = s.Finish();
   EXPECT_EQ(st.error_code(), grpc::StatusCode::NOT_FOUND) << st.error_message();
+}
+
+TEST_P(HapticServiceTest, PatchesArriveInOrderAmongTheUpdatesAndHoldTheRegion) {
+  FloorHarness h(GetParam(), "sphere:0.05,4");
+  Session s(*h.haptics);
+  v1::Hello hello = Session::DefaultHello();
+  hello.mutable_patches()->set_enabled(true);
+  ASSERT_TRUE(s.Open(hello).ok());
+  PatchClient client;
+  v1::CoupleResponse resp;
+  auto take = [&] {
+    if (resp.has_patch()) client.Apply(resp.patch());
+  };
+  // Sliding over the ball's top, 2 mm a pose: every few poses the probe
+  // leaves a quarter of the margin behind and a patch is due.
+  const int n = 30;
+  for (int k = 0; k < n; ++k) {
+    v1::CoupleRequest req;
+    auto* pose = req.mutable_pose();
+    pose->set_sequence(static_cast<std::uint64_t>(k + 1));
+    *pose->mutable_pose() = MakePose(-0.03 + 0.002 * k, 0, 0.058);
+    pose->set_client_time_ns(1'000'000'000LL + 10'000'000LL * k);
+    pose->set_round_trip_us(k == 3 ? std::nan("") : 2000);  // a bad report is ignored
+    ASSERT_TRUE(s.Write(req));
+    for (;;) {
+      ASSERT_TRUE(s.Read(&resp)) << "the stream ended before the answer to pose " << k + 1;
+      take();
+      if (resp.has_update() && resp.update().sequence() == static_cast<std::uint64_t>(k + 1)) break;
+    }
+  }
+  s.CloseWrites();
+  while (s.Read(&resp)) {
+    EXPECT_FALSE(resp.has_update()) << "an update after the writes were closed";
+    take();
+  }
+  const grpc::Status st = s.Finish();
+  EXPECT_TRUE(st.ok()) << st.error_message();
+  ASSERT_GE(client.sequence, 3u);
+  ASSERT_TRUE(client.bodies.contains("floor"));
+  const PatchClient::Body& b = client.bodies.at("floor");
+  const pd::Mesh ball = pd::shapes::MakeShape("sphere:0.05,4");
+  ExpectVerticesOf(ball, b);
+  // The last patch's cover, about one of the last poses (a pose answered
+  // while the previous patch is still being written cuts none), is held.
+  const Vec3 c(b.last.cover_center().x(), b.last.cover_center().y(), b.last.cover_center().z());
+  EXPECT_LT((c - Vec3(-0.03 + 0.002 * (n - 1), 0, 0.058)).norm(), 0.01);
+  const std::set<std::uint32_t> held = client.Held("floor");
+  const std::set<std::uint32_t> covered = TrianglesWithin(ball, c, b.last.cover_radius());
+  EXPECT_FALSE(covered.empty());
+  for (std::uint32_t f : covered) EXPECT_TRUE(held.contains(f)) << "triangle " << f;
+  EXPECT_TRUE(WaitUntil([&] { return h.server().counts().patches_sent >= client.sequence; }));
+  EXPECT_GT(h.server().counts().patch_bytes, 0u);
 }
 
 INSTANTIATE_TEST_SUITE_P(Transports, HapticServiceTest,

@@ -248,6 +248,9 @@ class Session {
   }
 
   bool Write(const v1::CoupleRequest& req) { return stream_->Write(req); }
+  /// The next message of any kind (updates, geometry patches); false when
+  /// the stream ended.
+  bool Read(v1::CoupleResponse* resp) { return stream_->Read(resp); }
   void CloseWrites() { stream_->WritesDone(); }
   grpc::Status Finish() {
     finished_ = true;
