@@ -237,13 +237,17 @@ void PatchStore::Bodies(std::int64_t server_t_ns, std::vector<pd::SceneBody>* ou
   }
 }
 
-bool PatchStore::Covers(const Vec3& c_W, double r, std::int64_t server_t_ns) const {
+bool PatchStore::Covers(std::span<const Vec3> points_W, std::int64_t server_t_ns) const {
   if (!have_patch_) return false;
-  if ((c_W - center_W_).norm() + r > radius_) return false;
+  for (const Vec3& p : points_W) {
+    if ((p - center_W_).norm() > radius_) return false;
+  }
   for (const auto& [id, body] : bodies_) {
     const Pose X_WB = PatchBodyPoseAt(body.meta, server_t_ns);
-    const Vec3 c_B = X_WB.R.transpose() * (c_W - X_WB.t);
-    if ((c_B - body.meta.cover_center_B).norm() + r > body.meta.cover_radius) return false;
+    for (const Vec3& p : points_W) {
+      const Vec3 p_B = X_WB.R.transpose() * (p - X_WB.t);
+      if ((p_B - body.meta.cover_center_B).norm() > body.meta.cover_radius) return false;
+    }
   }
   return true;
 }
@@ -297,7 +301,15 @@ LocalContactModel::LocalContactModel(pd::ModelPtr probe, const Pose& X_PA,
       X_PA_(X_PA),
       X_AP_(X_PA.Inverse()),
       options_(options),
-      store_(options.limits) {}
+      store_(options.limits) {
+  const pd::Aabb& box = probe_->mesh().bounds();
+  for (int i = 0; i < 8; ++i) {
+    corners_A_[static_cast<std::size_t>(i)] =
+        Vec3(i & 1 ? box.hi.x() : box.lo.x(), i & 2 ? box.hi.y() : box.lo.y(),
+             i & 4 ? box.hi.z() : box.lo.z());
+  }
+  thinnest_ = box.Size().minCoeff();
+}
 
 LocalContactModel::~LocalContactModel() { Stop(); }
 
@@ -327,8 +339,11 @@ void LocalContactModel::Reset() {
   reset_.store(true, std::memory_order_release);
 }
 
-bool LocalContactModel::Covered(const Pose& X_WP, std::int64_t server_t) const {
-  return !disabled_ && store_.Covers(X_WP.t, probe_->radius_about_com(), server_t);
+bool LocalContactModel::Covered(const Pose& X_WP, std::int64_t server_t) {
+  if (disabled_ || store_.empty()) return false;
+  const Pose X_WA = X_WP * X_PA_;
+  for (std::size_t i = 0; i < 8; ++i) corners_W_[i] = X_WA * corners_A_[i];
+  return store_.Covers(corners_W_, server_t);
 }
 
 void LocalContactModel::AnswerLocal(const ProxySample& x, std::int64_t now_ns,
@@ -421,8 +436,12 @@ bool LocalContactModel::Step(std::int64_t now_ns, IrMailbox* out) {
   if (!new_sample && !new_server) return false;
 
   const std::int64_t server_t = now_ns + offset_ns_.load(std::memory_order_relaxed);
+  const bool covered = have_sample_ && Covered(sample_.X_WP, server_t);
+  // Where the patch covers the probe, a server answer alone changes nothing:
+  // it is only kept for rule 2 at the next sample.
+  if (covered && !new_sample) return false;
   bool published = false;
-  if (have_sample_ && new_sample && Covered(sample_.X_WP, server_t)) {
+  if (covered) {
     const auto t0 = std::chrono::steady_clock::now();
     IntermediateRep& ir = out->back();
     AnswerLocal(sample_, now_ns, server_t, &ir);
@@ -431,8 +450,16 @@ bool LocalContactModel::Step(std::int64_t now_ns, IrMailbox* out) {
                                        std::chrono::steady_clock::now() - t0)
                                        .count());
     // Rule 2: the patch sees no contact, the server's fresh answer does.
+    double server_depth = 0;
+    for (int i = 0; i < server_ir_.num_rows; ++i) {
+      server_depth = std::max(server_depth, server_ir_.rows[static_cast<std::size_t>(i)].depth);
+    }
+    if (server_ir_.use_target) {
+      server_depth =
+          std::max(server_depth, (server_ir_.X_WP_target.t - server_ir_.X_WP_ref.t).norm());
+    }
     const bool server_deeper = model_.outcome == pd::ContactOutcome::kSeparated && have_server_ &&
-                               (server_ir_.num_rows > 0 || server_ir_.use_target) &&
+                               server_depth >= thinnest_ &&
                                now_ns - server_ir_.receive_time_ns <=
                                    static_cast<std::int64_t>(options_.server_fresh_s * 1e9) &&
                                InsideValidity(server_ir_, sample_.X_WP);

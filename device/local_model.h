@@ -7,16 +7,17 @@
 // wire's GeometryPatch into a PatchDelta and hands it here.
 //
 // Which model answers (one rule, evaluated at every local step):
-//   1. The patch answers when it covers the probe: the probe's sphere about
-//      its centre of mass (radius GeometryModel::radius_about_com) lies in
-//      the patch's region, and in the cover of every body it holds (the
-//      body's pose taken at the current server time). The answer is PD on
+//   1. The patch answers when it covers the probe: the corners of the
+//      probe's bounding box (its mesh frame) lie in the patch's region, and
+//      in the cover of every body it holds (the body's pose taken at the
+//      current server time), so no triangle the probe can touch is missing. The answer is PD on
 //      the held triangles in the session's mode, through pd::BuildContactModel
 //      (the server's rule), at the newest proxy sample.
 //   2. Where the patch finds no contact but the server's newest answer (still
-//      fresh, and valid at this pose) does, the server's answer is rendered:
-//      the probe may be deeper than the patch's surface can tell (wholly
-//      inside a body).
+//      fresh, valid at this pose, and at least as deep as the probe's
+//      thinnest extent) does, the server's answer is rendered: the probe may
+//      be wholly inside a body, where no surface crosses it. A shallower
+//      server contact is an old pose's: the patch knows better.
 //   3. Where the patch does not cover the probe (no patch yet, the probe
 //      outran it, a rejected patch, the stream quiet for longer than
 //      `patch_quiet_s`, or broken), the server's answers are rendered as they
@@ -36,6 +37,7 @@
 #include <cstdint>
 #include <deque>
 #include <mutex>
+#include <span>
 #include <string>
 #include <thread>
 #include <unordered_map>
@@ -119,9 +121,9 @@ class PatchStore {
   void Bodies(std::int64_t server_t_ns, std::vector<pd::SceneBody>* out,
               std::vector<std::uint64_t>* keys);
 
-  /// True when the sphere (c_W, r) lies in the region and in the cover of
+  /// True when every point (W) lies in the region and in the cover of
   /// every held body at server time t.
-  bool Covers(const Vec3& c_W, double r, std::int64_t server_t_ns) const;
+  bool Covers(std::span<const Vec3> points_W, std::int64_t server_t_ns) const;
 
  private:
   struct Body {
@@ -220,11 +222,14 @@ class LocalContactModel {
   LocalModelStats stats() const;
 
  private:
-  bool Covered(const Pose& X_WP, std::int64_t server_t) const;
+  bool Covered(const Pose& X_WP, std::int64_t server_t);
   void AnswerLocal(const ProxySample& x, std::int64_t now_ns, std::int64_t server_t,
                    IntermediateRep* ir);
 
   const pd::ModelPtr probe_;
+  std::array<Vec3, 8> corners_A_;  // the probe's bounding box, mesh frame
+  std::array<Vec3, 8> corners_W_;
+  double thinnest_ = 0;  // m, the probe's smallest bounding-box extent
   const Pose X_PA_;
   const Pose X_AP_;
   const LocalModelOptions options_;

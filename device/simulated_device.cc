@@ -46,6 +46,7 @@ double Ramp(double s, double a, double b) { return SmoothStep((s - a) / (b - a))
 }  // namespace
 
 Pose ScriptPose(const ScriptParams& p, double t_s) {
+  t_s -= p.hold_s;
   const double s = p.duration_s > 0 ? std::clamp(t_s / p.duration_s, 0.0, 1.0) : 1.0;
   Vec3 d = Vec3::Zero();    // displacement in S
   Vec3 rot = Vec3::Zero();  // rotation vector in S

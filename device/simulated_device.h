@@ -45,6 +45,9 @@ struct ScriptParams {
   double lateral = 0.04;  ///< m
   double angle = 0.6;     ///< rad
   double radius = 0.01;   ///< m
+  /// s the hand holds the start pose before the script begins (a user
+  /// waiting for the link to come up before reaching for the scene).
+  double hold_s = 0;
 };
 
 /// The hand's target pose X_DS(t) (t in seconds from the start).

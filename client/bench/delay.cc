@@ -306,6 +306,10 @@ std::vector<TickSample> RunOnce(const Scenario& sc, int port, double delay_ms, d
   const device::Pose X_PA = session.X_PA();
   device::ScriptParams sp = sc.script;
   sp.duration_s *= time_scale;
+  // The hand waits for the link: two round trips (and 0.1 s) at the start
+  // pose, so every delay's script begins with the session answering (a user
+  // does not reach for the scene before the device session is up).
+  sp.hold_s = 0.1 + 2.5e-3 * delay_ms;
   const auto& clock = device::SteadyClock::Instance();
   device::SimulatedDevice dev(sp, &clock);
   dev.Open();
@@ -317,7 +321,7 @@ std::vector<TickSample> RunOnce(const Scenario& sc, int port, double delay_ms, d
   config.effects = client::EffectsFromSceneConfig(session.welcome().scene_config());
   device::ServoLoop loop(&dev, config, &clock);
   session.Start(&loop);
-  const int ticks = static_cast<int>(std::lround((sp.duration_s + 0.3) * 1000));
+  const int ticks = static_cast<int>(std::lround((sp.hold_s + sp.duration_s + 0.3) * 1000));
   std::vector<TickSample> out;
   out.reserve(static_cast<std::size_t>(ticks));
   // Ticked by this thread at absolute 1 ms deadlines, as the loop's own
@@ -333,7 +337,7 @@ std::vector<TickSample> RunOnce(const Scenario& sc, int port, double delay_ms, d
     loop.Tick(clock.NowNs());
     const device::TickRecord& r = loop.last_tick();
     TickSample& s = out.emplace_back();
-    s.t_s = 1e-9 * static_cast<double>(r.time_ns - t0);
+    s.t_s = 1e-9 * static_cast<double>(r.time_ns - t0) - sp.hold_s;
     s.F = r.F_cmd_W.force;
     s.tau = r.F_cmd_W.torque;
     s.X_WH = r.X_WH;
@@ -453,7 +457,7 @@ void Measure(const Scenario& sc, const std::vector<TickSample>& ticks, DelayRun*
         }
       }
     }
-    if (i % 2 == 0) {
+    if (i % 2 == 0 && s.t_s >= 0) {
       run->t.push_back(static_cast<float>(s.t_s));
       run->force.push_back(static_cast<float>(F));
       run->torque.push_back(static_cast<float>(s.tau.norm()));

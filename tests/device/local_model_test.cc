@@ -89,9 +89,19 @@ TEST(PatchStore, HoldsWhatWasSentAndCoversTheProbe) {
   EXPECT_EQ(store.triangles_held(), d.bodies[0].triangle_indices.size());
   EXPECT_GT(store.triangles_held(), 0u);
   EXPECT_LT(store.triangles_held(), sc.box->mesh().num_triangles());
-  EXPECT_TRUE(store.Covers(sc.Com(X_WA), sc.Reach(), 0));
-  // 2 cm away the probe leaves the 1 cm margin.
-  EXPECT_FALSE(store.Covers(sc.Com(X_WA) + Vec3(0.02, 0, 0), sc.Reach(), 0));
+  // The probe's bounding-box corners: inside; 2 cm along the stick (the
+  // direction that moves its farthest corners most), outside the 1 cm margin.
+  const pd::Aabb& box = sc.probe->mesh().bounds();
+  auto corners = [&](const Pose& X) {
+    std::vector<Vec3> c;
+    for (int i = 0; i < 8; ++i) {
+      c.push_back(X * Vec3(i & 1 ? box.hi.x() : box.lo.x(), i & 2 ? box.hi.y() : box.lo.y(),
+                           i & 4 ? box.hi.z() : box.lo.z()));
+    }
+    return c;
+  };
+  EXPECT_TRUE(store.Covers(corners(X_WA), 0));
+  EXPECT_FALSE(store.Covers(corners(Pose::FromTranslation(Vec3(0, 0, 0.02)) * X_WA), 0));
   // Dropping triangles forgets them, and the vertices only they used.
   PatchDelta drop;
   drop.sequence = 2;
@@ -268,9 +278,9 @@ TEST(LocalModel, AnswersLocallyWhereThePatchCoversAndFallsBackWhereItDoesNot) {
   EXPECT_GT(ir.rows[0].n_W.z(), 0.999);
   EXPECT_EQ(ir.rows[0].stiffness, 1000);
   EXPECT_EQ(lm.stats().local_answers, 1u);
-  // The probe outruns the patch (3 cm sideways, margin 1 cm): the server's
+  // The probe outruns the patch (6 cm sideways, margin 1 cm): the server's
   // answer, never rows from geometry the patch does not hold.
-  const Pose far = sc.ProbeAt(0.003, 0.04);
+  const Pose far = sc.ProbeAt(0.003, 0.06);
   t += 1'000'000;
   server.receive_time_ns = t;
   server.rows[0].depth = 0.0025;
