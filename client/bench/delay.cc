@@ -573,6 +573,29 @@ void JudgeGoals(DelayReport* report) {
     goals.push_back({"passive everywhere (observer >= -tolerance)", passive, "closest " + worst_p});
     goals.push_back({"free space <= 0.05 N", free_ok, worst_f});
   }
+  // The delay's own share: no run's observer below its script's 0 ms run
+  // by more than the tolerance (what the loop shows without any delay is
+  // the coupling's, not the link's).
+  bool no_worse = true;
+  std::string worst_d;
+  double worst_dm = 1e9;
+  for (const DelayRun& r : report->runs) {
+    const DelayRun* base = find(r.script, 0);
+    if (!base || r.delay_ms == 0) continue;
+    const double margin = r.passivity_min_j - base->passivity_min_j + PassivityEps(r);
+    no_worse = no_worse && margin > 0;
+    if (margin < worst_dm) {
+      worst_dm = margin;
+      worst_d = r.script + " " + Fmt("%g", r.delay_ms) + " ms: observer min " +
+                Fmt("%.2f mJ", 1e3 * r.passivity_min_j) + " vs " +
+                Fmt("%.2f mJ", 1e3 * base->passivity_min_j) + " at 0 ms (tolerance " +
+                Fmt("%.2f mJ", 1e3 * PassivityEps(r)) + ")";
+    }
+  }
+  if (!worst_d.empty()) {
+    goals.push_back({"delay adds no energy (observer >= the 0 ms run's - tolerance)", no_worse,
+                     "closest " + worst_d});
+  }
 }
 
 }  // namespace
