@@ -18,6 +18,17 @@ constexpr double kMaxCoordinate = 1e6;
 
 bool Sane(const Vec3& v) { return Finite(v) && v.cwiseAbs().maxCoeff() <= kMaxCoordinate; }
 
+/// The deepest row of an IR at its reference pose (a PDg target: the
+/// distance to it); 0 without contact.
+double MaxRowDepth(const IntermediateRep& ir) {
+  double d = 0;
+  for (int i = 0; i < ir.num_rows; ++i) {
+    d = std::max(d, ir.rows[static_cast<std::size_t>(i)].depth);
+  }
+  if (ir.use_target) d = std::max(d, (ir.X_WP_target.t - ir.X_WP_ref.t).norm());
+  return d;
+}
+
 }  // namespace
 
 Pose PatchBodyPoseAt(const PatchBodyDelta& b, std::int64_t t_ns) {
@@ -368,6 +379,7 @@ void LocalContactModel::AnswerLocal(const ProxySample& x, std::int64_t now_ns,
   mo.validity_fraction = options_.validity_fraction;
   pd::BuildContactModel(*probe_, X_WA, bodies_, result_, mo, &model_);
   IrFromContactModel(model_, x, X_AP_, options_.torque, ir);
+  answered_[x.sequence % kAnswered] = {x.sequence, MaxRowDepth(*ir)};
   ir->receive_time_ns = now_ns;
   ir->compute_time_us = result_.time_us;
   ir->source = kIrSourceLocal;
@@ -427,6 +439,16 @@ bool LocalContactModel::Step(std::int64_t now_ns, IrMailbox* out) {
     have_server_ = true;
     server_ir_published_ = false;
     new_server = true;
+    // The reference check: the local answer to the same sample, if any.
+    const Answered& a = answered_[server_ir_.sequence % kAnswered];
+    if (a.sequence == server_ir_.sequence && a.sequence != 0) {
+      const double ds = MaxRowDepth(server_ir_);
+      const double diff = std::abs(a.depth - ds);
+      std::lock_guard lock(stats_mu_);
+      ++stats_.reference_checks;
+      if (diff > 1e-4 + 0.05 * std::max(a.depth, ds)) ++stats_.reference_disagreements;
+      reference_diff_um_.Add(std::max(1.0, 1e6 * diff));
+    }
   }
   const bool new_sample = samples_.Fetch();
   if (new_sample) {
@@ -450,14 +472,7 @@ bool LocalContactModel::Step(std::int64_t now_ns, IrMailbox* out) {
                                        std::chrono::steady_clock::now() - t0)
                                        .count());
     // Rule 2: the patch sees no contact, the server's fresh answer does.
-    double server_depth = 0;
-    for (int i = 0; i < server_ir_.num_rows; ++i) {
-      server_depth = std::max(server_depth, server_ir_.rows[static_cast<std::size_t>(i)].depth);
-    }
-    if (server_ir_.use_target) {
-      server_depth =
-          std::max(server_depth, (server_ir_.X_WP_target.t - server_ir_.X_WP_ref.t).norm());
-    }
+    const double server_depth = MaxRowDepth(server_ir_);
     const bool server_deeper = model_.outcome == pd::ContactOutcome::kSeparated && have_server_ &&
                                server_depth >= thinnest_ &&
                                now_ns - server_ir_.receive_time_ns <=
@@ -521,6 +536,8 @@ LocalModelStats LocalContactModel::stats() const {
   s.compute_p50_us = compute_us_.Quantile(0.5);
   s.compute_p99_us = compute_us_.Quantile(0.99);
   s.compute_max_us = compute_us_.max();
+  s.reference_diff_p99_mm = 1e-3 * reference_diff_um_.Quantile(0.99);
+  s.reference_diff_max_mm = 1e-3 * reference_diff_um_.max();
   const double span = 1e-9 * static_cast<double>(last_step_ns_ - first_step_ns_);
   s.rate_hz = span > 0 ? static_cast<double>(s.local_answers + s.server_deeper) / span : 0;
   return s;

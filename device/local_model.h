@@ -23,6 +23,11 @@
 //      `patch_quiet_s`, or broken), the server's answers are rendered as they
 //      arrive, exactly as without a local model; with neither, the IR goes
 //      stale and the servo loop fades the contact out.
+// The server's answer is the reference the local one is checked against:
+// when an answer arrives for a proxy sample the local model also answered,
+// their deepest rows are compared (LocalModelStats::reference_*); a
+// disagreement beyond 0.1 mm plus 5 % says the patch and the scene differ
+// (or the two methods found different contact configurations).
 // The servo loop counts per tick which source its IR came from
 // (IntermediateRep::source, ServoStats).
 //
@@ -178,6 +183,11 @@ struct LocalModelStats {
   std::size_t triangles_held = 0;
   double compute_p50_us = 0, compute_p99_us = 0, compute_max_us = 0;
   double rate_hz = 0;  ///< local answers per second of the worker's run
+  /// Server answers compared with the local answer to the same sample, how
+  /// many disagreed, and the depth difference (mm).
+  std::uint64_t reference_checks = 0;
+  std::uint64_t reference_disagreements = 0;
+  double reference_diff_p99_mm = 0, reference_diff_max_mm = 0;
   std::string last_problem;
 };
 
@@ -259,10 +269,19 @@ class LocalContactModel {
   pd::ScenePdResult result_;
   pd::ContactModel model_;
   std::int64_t first_step_ns_ = -1, last_step_ns_ = 0;
+  // The local answers' deepest rows by sample sequence, for the reference
+  // check against the server's answers (which arrive a round trip later).
+  struct Answered {
+    std::uint64_t sequence = 0;
+    double depth = 0;
+  };
+  static constexpr std::size_t kAnswered = 1024;
+  std::array<Answered, kAnswered> answered_{};
 
   mutable std::mutex stats_mu_;
   LocalModelStats stats_;
   Histogram compute_us_ = Histogram::LogScale(1, 1e7, 16);
+  Histogram reference_diff_um_ = Histogram::LogScale(1, 1e6, 16);
 
   std::jthread thread_;
 };

@@ -450,3 +450,41 @@ TEST(LocalModel, AQuietStreamDropsThePatch) {
 
 }  // namespace
 }  // namespace hapticpd::device
+
+namespace hapticpd::device {
+namespace {
+
+TEST(LocalModel, TheServersAnswerIsCheckedAgainstTheLocalAnswerToTheSameSample) {
+  Scene sc;
+  LocalContactModel lm(sc.probe, sc.X_PA(), LocalModelOptions{});
+  IrMailbox out;
+  const Pose X_WA = sc.ProbeAt(0.003);
+  std::int64_t t = 1'000'000'000;
+  lm.OfferPatch(sc.Patch(X_WA, 0.01), t);
+  for (std::uint64_t seq = 1; seq <= 3; ++seq) {
+    t += 1'000'000;
+    lm.OfferSample(sc.Sample(X_WA, seq, t));
+    ASSERT_TRUE(lm.Step(t, &out));
+  }
+  // The server answers sample 2 as the patch did (3 mm), then sample 3 a
+  // millimetre deeper, then a sample the local model never answered.
+  IntermediateRep server;
+  server.num_rows = 1;
+  server.rows[0].n_W = Vec3::UnitZ();
+  server.rows[0].stiffness = 1000;
+  for (auto [seq, depth] : {std::pair<std::uint64_t, double>{2, 0.003}, {3, 0.004}, {99, 0.003}}) {
+    t += 1'000'000;
+    server.sequence = seq;
+    server.rows[0].depth = depth;
+    server.receive_time_ns = t;
+    lm.OfferServerIr(server);
+    (void)lm.Step(t, &out);
+  }
+  const LocalModelStats s = lm.stats();
+  EXPECT_EQ(s.reference_checks, 2u);
+  EXPECT_EQ(s.reference_disagreements, 1u);
+  EXPECT_NEAR(s.reference_diff_max_mm, 1.0, 0.05);
+}
+
+}  // namespace
+}  // namespace hapticpd::device
