@@ -265,7 +265,10 @@ void RunDevice(const DeviceOptions& o) {
                       {"uncovered", ss.local.uncovered},
                       {"rate_hz", ss.local.rate_hz},
                       {"pd_p50_us", ss.local.compute_p50_us},
-                      {"pd_p99_us", ss.local.compute_p99_us}};
+                      {"pd_p99_us", ss.local.compute_p99_us},
+                      {"reference_checks", ss.local.reference_checks},
+                      {"reference_disagreements", ss.local.reference_disagreements},
+                      {"reference_diff_p99_mm", ss.local.reference_diff_p99_mm}};
   if (!ss.local.last_problem.empty()) j["local_model"]["last_problem"] = ss.local.last_problem;
   if (ss.link.active) {
     j["link"] = {{"delay_ms", o.link.delay_ms},
@@ -316,6 +319,9 @@ void RunDevice(const DeviceOptions& o) {
         static_cast<unsigned long long>(ss.local.patches), 1e-3 * ss.local.patch_bytes,
         ss.local.triangles_held, ss.local.rate_hz, ss.local.compute_p50_us,
         ss.local.compute_p99_us);
+    std::printf(", %llu of %llu server answers disagree with it",
+                static_cast<unsigned long long>(ss.local.reference_disagreements),
+                static_cast<unsigned long long>(ss.local.reference_checks));
     if (ss.local.bad_patches > 0) {
       std::printf(", %llu bad patches (last: %s)",
                   static_cast<unsigned long long>(ss.local.bad_patches),
