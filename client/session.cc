@@ -249,6 +249,7 @@ Session::Session(SessionOptions options, const device::Clock* clock)
   if (options_.hello.protocol_version() == 0) options_.hello.set_protocol_version(1);
   if (options_.hello.client_name().empty()) options_.hello.set_client_name("hapticpd device");
   if (!options_.credentials) options_.credentials = grpc::InsecureChannelCredentials();
+  if (!options_.local_model) counters_.local_model_note = "off";
   if (options_.local_model) {
     v1::PatchRequest* pr = options_.hello.mutable_patches();
     pr->set_enabled(true);

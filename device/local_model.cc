@@ -201,10 +201,11 @@ std::size_t PatchStore::triangles_held() const {
   return n;
 }
 
-void PatchStore::Bodies(std::int64_t server_t_ns, std::vector<pd::SceneBody>* out,
-                        std::vector<std::uint64_t>* keys) {
-  out->clear();
-  keys->clear();
+std::shared_ptr<const PatchView> PatchStore::View() {
+  if (!have_patch_) return nullptr;
+  auto view = std::make_shared<PatchView>();
+  view->center_W = center_W_;
+  view->radius = radius_;
   static std::atomic<std::uint64_t> next_build{1};
   for (auto& [id, body] : bodies_) {
     if (body.dirty) {
@@ -241,11 +242,41 @@ void PatchStore::Bodies(std::int64_t server_t_ns, std::vector<pd::SceneBody>* ou
       }
       body.build = next_build.fetch_add(1, std::memory_order_relaxed);
     }
-    if (!body.model) continue;
-    out->push_back(
-        pd::SceneBody{body.model, PatchBodyPoseAt(body.meta, server_t_ns), body.meta.material});
-    keys->push_back(body.build);
+    view->bodies.push_back(PatchView::Body{body.meta, body.model, body.build});
   }
+  return view;
+}
+
+void PatchStore::Bodies(std::int64_t server_t_ns, std::vector<pd::SceneBody>* out,
+                        std::vector<std::uint64_t>* keys) {
+  out->clear();
+  keys->clear();
+  if (const auto view = View()) view->Bodies(server_t_ns, out, keys);
+}
+
+void PatchView::Bodies(std::int64_t server_t_ns, std::vector<pd::SceneBody>* out,
+                       std::vector<std::uint64_t>* keys) const {
+  out->clear();
+  keys->clear();
+  for (const Body& b : bodies) {
+    if (!b.model) continue;
+    out->push_back(pd::SceneBody{b.model, PatchBodyPoseAt(b.meta, server_t_ns), b.meta.material});
+    keys->push_back(b.build);
+  }
+}
+
+bool PatchView::Covers(std::span<const Vec3> points_W, std::int64_t server_t_ns) const {
+  for (const Vec3& p : points_W) {
+    if ((p - center_W).norm() > radius) return false;
+  }
+  for (const Body& body : bodies) {
+    const Pose X_WB = PatchBodyPoseAt(body.meta, server_t_ns);
+    for (const Vec3& p : points_W) {
+      const Vec3 p_B = X_WB.R.transpose() * (p - X_WB.t);
+      if ((p_B - body.meta.cover_center_B).norm() > body.meta.cover_radius) return false;
+    }
+  }
+  return true;
 }
 
 bool PatchStore::Covers(std::span<const Vec3> points_W, std::int64_t server_t_ns) const {
@@ -326,14 +357,20 @@ LocalContactModel::~LocalContactModel() { Stop(); }
 
 void LocalContactModel::OfferPatch(PatchDelta delta, std::int64_t now_ns) {
   last_message_ns_.store(now_ns, std::memory_order_relaxed);
-  std::lock_guard lock(queue_mu_);
-  offered_bytes_ += delta.wire_bytes;
-  queue_.push_back(std::move(delta));
+  {
+    std::lock_guard lock(queue_mu_);
+    offered_bytes_ += delta.wire_bytes;
+    queue_.push_back(std::move(delta));
+  }
+  queue_cv_.notify_all();
 }
 
 void LocalContactModel::RejectPatch(const std::string& problem) {
-  std::lock_guard lock(queue_mu_);
-  undecodable_ = problem.empty() ? std::string("undecodable patch") : problem;
+  {
+    std::lock_guard lock(queue_mu_);
+    undecodable_ = problem.empty() ? std::string("undecodable patch") : problem;
+  }
+  queue_cv_.notify_all();
 }
 
 void LocalContactModel::OfferServerIr(const IntermediateRep& ir) {
@@ -344,22 +381,26 @@ void LocalContactModel::OfferServerIr(const IntermediateRep& ir) {
 void LocalContactModel::OfferSample(const ProxySample& sample) { samples_.Write(sample); }
 
 void LocalContactModel::Reset() {
-  std::lock_guard lock(queue_mu_);
-  queue_.clear();
-  undecodable_.clear();
-  reset_.store(true, std::memory_order_release);
+  {
+    std::lock_guard lock(queue_mu_);
+    queue_.clear();
+    undecodable_.clear();
+    reset_.store(true, std::memory_order_release);
+    reset_worker_.store(true, std::memory_order_release);
+  }
+  queue_cv_.notify_all();
 }
 
 bool LocalContactModel::Covered(const Pose& X_WP, std::int64_t server_t) {
-  if (disabled_ || store_.empty()) return false;
+  if (!view_now_) return false;
   const Pose X_WA = X_WP * X_PA_;
   for (std::size_t i = 0; i < 8; ++i) corners_W_[i] = X_WA * corners_A_[i];
-  return store_.Covers(corners_W_, server_t);
+  return view_now_->Covers(corners_W_, server_t);
 }
 
 void LocalContactModel::AnswerLocal(const ProxySample& x, std::int64_t now_ns,
                                     std::int64_t server_t, IntermediateRep* ir) {
-  store_.Bodies(server_t, &bodies_, &keys_);
+  view_now_->Bodies(server_t, &bodies_, &keys_);
   // A body whose model was rebuilt starts its coherence cache afresh.
   data_.Resize(bodies_.size());
   data_.per_body_pdg.resize(bodies_.size());
@@ -385,54 +426,73 @@ void LocalContactModel::AnswerLocal(const ProxySample& x, std::int64_t now_ns,
   ir->source = kIrSourceLocal;
 }
 
-bool LocalContactModel::Step(std::int64_t now_ns, IrMailbox* out) {
-  // Patches first: they describe the scene the newest answers came from.
+void LocalContactModel::ApplyQueued(std::int64_t now_ns) {
+  std::deque<PatchDelta> queue;
+  std::string undecodable;
+  std::uint64_t bytes = 0;
+  bool reset;
   {
-    std::deque<PatchDelta> queue;
-    std::string undecodable;
-    std::uint64_t bytes = 0;
-    {
-      std::lock_guard lock(queue_mu_);
-      queue.swap(queue_);
-      undecodable.swap(undecodable_);
-      bytes = offered_bytes_;
-    }
-    if (reset_.exchange(false, std::memory_order_acq_rel)) {
-      if (!store_.empty()) {
-        std::lock_guard lock(stats_mu_);
-        ++stats_.drops;
-      }
-      store_.Clear();
-      disabled_ = false;
-      have_server_ = false;
-    }
-    std::string problem = undecodable;
-    std::uint64_t applied = 0;
-    for (const PatchDelta& d : queue) {
-      if (disabled_ || !problem.empty()) break;
-      problem = store_.Apply(d);
-      if (problem.empty()) ++applied;
-    }
-    std::lock_guard lock(stats_mu_);
-    stats_.patch_bytes = bytes;
-    stats_.patches += applied;
-    if (!problem.empty() && !disabled_) {
-      // What the server believes we hold is no longer what we hold: the
-      // patch is no use until the stream starts afresh.
-      ++stats_.bad_patches;
-      stats_.last_problem = problem;
-      store_.Clear();
-      disabled_ = true;
-    }
-    stats_.triangles_held = store_.triangles_held();
+    std::lock_guard lock(queue_mu_);
+    queue.swap(queue_);
+    undecodable.swap(undecodable_);
+    bytes = offered_bytes_;
+    reset = reset_.exchange(false, std::memory_order_acq_rel);
+  }
+  bool changed = false;
+  std::uint64_t drops = 0;
+  if (reset) {
+    if (!store_.empty()) ++drops;
+    store_.Clear();
+    disabled_ = false;
+    changed = true;
+  }
+  std::string problem = undecodable;
+  std::uint64_t applied = 0;
+  for (const PatchDelta& d : queue) {
+    if (disabled_ || !problem.empty()) break;
+    problem = store_.Apply(d);
+    if (problem.empty()) ++applied;
+  }
+  changed = changed || applied > 0;
+  const bool rejected = !problem.empty() && !disabled_;
+  if (rejected) {
+    // What the server believes we hold is no longer what we hold: the
+    // patch is no use until the stream starts afresh.
+    store_.Clear();
+    disabled_ = true;
+    changed = true;
   }
   // A quiet stream: the scene may have changed unseen.
   if (!store_.empty() && now_ns - last_message_ns_.load(std::memory_order_relaxed) >
                              static_cast<std::int64_t>(options_.patch_quiet_s * 1e9)) {
     store_.Clear();
-    std::lock_guard lock(stats_mu_);
-    ++stats_.drops;
+    ++drops;
+    changed = true;
   }
+  if (changed) {
+    std::shared_ptr<const PatchView> view = disabled_ ? nullptr : store_.View();
+    std::lock_guard lock(view_mu_);
+    view_ = std::move(view);
+  }
+  std::lock_guard lock(stats_mu_);
+  stats_.patch_bytes = bytes;
+  stats_.patches += applied;
+  stats_.drops += drops;
+  if (rejected) {
+    ++stats_.bad_patches;
+    stats_.last_problem = problem;
+  }
+  stats_.triangles_held = store_.triangles_held();
+}
+
+bool LocalContactModel::Step(std::int64_t now_ns, IrMailbox* out) {
+  // Patches first: they describe the scene the newest answers came from.
+  if (!background_) ApplyQueued(now_ns);
+  {
+    std::lock_guard lock(view_mu_);
+    view_now_ = view_;
+  }
+  if (reset_worker_.exchange(false, std::memory_order_acq_rel)) have_server_ = false;
   bool new_server = false;
   if (server_.Fetch()) {
     server_ir_ = server_.front();
@@ -516,6 +576,17 @@ bool LocalContactModel::Step(std::int64_t now_ns, IrMailbox* out) {
 
 void LocalContactModel::Start(IrMailbox* out, const Clock* clock) {
   if (thread_.joinable()) return;
+  background_ = true;
+  builder_ = std::jthread([this, clock](std::stop_token st) {
+    while (!st.stop_requested()) {
+      ApplyQueued(clock->NowNs());
+      std::unique_lock lock(queue_mu_);
+      // Woken by a patch, a reset or Stop; at least every 10 ms for the
+      // quiet-stream drop.
+      queue_cv_.wait_for(lock, st, std::chrono::milliseconds(10),
+                         [&] { return !queue_.empty() || !undecodable_.empty() || reset_.load(); });
+    }
+  });
   thread_ = std::jthread([this, out, clock](std::stop_token st) {
     while (!st.stop_requested()) {
       if (!Step(clock->NowNs(), out)) std::this_thread::sleep_for(std::chrono::microseconds(100));
@@ -528,6 +599,10 @@ void LocalContactModel::Stop() {
   thread_.request_stop();
   thread_.join();
   thread_ = std::jthread();
+  builder_.request_stop();
+  builder_.join();
+  builder_ = std::jthread();
+  background_ = false;
 }
 
 LocalModelStats LocalContactModel::stats() const {

@@ -39,8 +39,10 @@
 
 #include <array>
 #include <atomic>
+#include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <memory>
 #include <mutex>
 #include <span>
 #include <string>
@@ -101,8 +103,28 @@ struct PatchLimits {
 /// by w dt in W).
 Pose PatchBodyPoseAt(const PatchBodyDelta& b, std::int64_t t_ns);
 
+/// An immutable view of what is held, with every body's model built: what
+/// the local model answers from while the next patch is applied and built.
+struct PatchView {
+  struct Body {
+    PatchBodyDelta meta;      // pose, material, cover (no arrays)
+    pd::ModelPtr model;       // null: the body holds no triangle
+    std::uint64_t build = 0;  // changes with every rebuilt model
+  };
+  Vec3 center_W = Vec3::Zero();
+  double radius = 0;
+  std::vector<Body> bodies;
+  /// True when every point (W) lies in the region and in the cover of
+  /// every body at server time t.
+  bool Covers(std::span<const Vec3> points_W, std::int64_t server_t_ns) const;
+  /// The bodies holding triangles as PD bodies at server time t, and their
+  /// build keys (a new key: the body's coherence cache must be reset).
+  void Bodies(std::int64_t server_t_ns, std::vector<pd::SceneBody>* out,
+              std::vector<std::uint64_t>* keys) const;
+};
+
 /// What the client holds: per body, triangles and vertices by their stable
-/// index, its pose, material and cover. Not thread-safe (the worker owns it).
+/// index, its pose, material and cover. Not thread-safe (one thread owns it).
 class PatchStore {
  public:
   explicit PatchStore(const PatchLimits& limits = {}) : limits_(limits) {}
@@ -119,10 +141,11 @@ class PatchStore {
   std::size_t triangles_held() const;
   std::size_t bodies_held() const { return bodies_.size(); }
 
-  /// The held bodies as PD bodies at server time t: models of bodies whose
-  /// triangles changed are rebuilt here (allocates; worker thread only).
-  /// `changed[i]` says body i's model is new since the previous call (its
-  /// coherence cache must be reset). Bodies holding no triangle are left out.
+  /// The view of what is held (null when nothing is): models of bodies
+  /// whose triangles changed are rebuilt here (allocates; milliseconds for
+  /// thousands of triangles).
+  std::shared_ptr<const PatchView> View();
+  /// View()->Bodies (tests).
   void Bodies(std::int64_t server_t_ns, std::vector<pd::SceneBody>* out,
               std::vector<std::uint64_t>* keys);
 
@@ -221,11 +244,14 @@ class LocalContactModel {
   void Reset();
 
   // --- worker
-  /// One step at loop time now_ns: applies queued patches, and answers the
-  /// newest sample by the rule above into `out`. Returns true when it
-  /// published an IR.
+  /// One step at loop time now_ns: without Start, applies queued patches
+  /// and builds their models first; then answers the newest sample by the
+  /// rule above into `out`. Returns true when it published an IR.
   bool Step(std::int64_t now_ns, IrMailbox* out);
-  /// Runs Step on a thread whenever a sample or answer arrives, until Stop.
+  /// Runs Step on a thread whenever a sample or answer arrives, and applies
+  /// patches and builds their models on a second thread (a patch of
+  /// thousands of triangles takes milliseconds to build: meanwhile the
+  /// previous view answers), until Stop.
   void Start(IrMailbox* out, const Clock* clock = &SteadyClock::Instance());
   void Stop();
 
@@ -233,6 +259,9 @@ class LocalContactModel {
 
  private:
   bool Covered(const Pose& X_WP, std::int64_t server_t);
+  /// Applies queued patches, resets and the quiet-stream drop to the store
+  /// and publishes its view (the builder thread, or Step without Start).
+  void ApplyQueued(std::int64_t now_ns);
   void AnswerLocal(const ProxySample& x, std::int64_t now_ns, std::int64_t server_t,
                    IntermediateRep* ir);
 
@@ -247,7 +276,8 @@ class LocalContactModel {
   LatestMailbox<ProxySample> samples_;
   LatestMailbox<IntermediateRep> server_;
   std::atomic<std::int64_t> offset_ns_{0};
-  std::atomic<bool> reset_{false};
+  std::atomic<bool> reset_{false};         // for the store (ApplyQueued)
+  std::atomic<bool> reset_worker_{false};  // for the worker's server answer
   std::atomic<std::int64_t> last_message_ns_{0};
 
   std::mutex queue_mu_;
@@ -255,9 +285,19 @@ class LocalContactModel {
   std::string undecodable_;  // set by RejectPatch (under queue_mu_)
   std::uint64_t offered_bytes_ = 0;
 
-  // Worker state.
+  std::condition_variable_any queue_cv_;  // wakes the builder
+
+  // Builder state (ApplyQueued).
   PatchStore store_;
   bool disabled_ = false;  // a patch was rejected: server answers only
+  // The newest view, handed from the builder to the worker.
+  std::mutex view_mu_;
+  std::shared_ptr<const PatchView> view_;
+  bool background_ = false;  // Start() runs ApplyQueued on its own thread
+  std::jthread builder_;
+
+  // Worker state.
+  std::shared_ptr<const PatchView> view_now_;
   bool have_sample_ = false;
   ProxySample sample_;
   bool have_server_ = false;

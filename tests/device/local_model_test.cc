@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <functional>
+#include <thread>
 
 #include "pd/primitives.h"
 #include "pd/shapes.h"
@@ -484,6 +485,36 @@ TEST(LocalModel, TheServersAnswerIsCheckedAgainstTheLocalAnswerToTheSameSample) 
   EXPECT_EQ(s.reference_checks, 2u);
   EXPECT_EQ(s.reference_disagreements, 1u);
   EXPECT_NEAR(s.reference_diff_max_mm, 1.0, 0.05);
+}
+
+}  // namespace
+}  // namespace hapticpd::device
+
+namespace hapticpd::device {
+namespace {
+
+// With Start(), patches are applied and built on their own thread while the
+// worker keeps answering from the previous view.
+TEST(LocalModel, ThreadedWorkerAnswersFromPatchesBuiltInTheBackground) {
+  Scene sc;
+  LocalContactModel lm(sc.probe, sc.X_PA(), LocalModelOptions{});
+  IrMailbox out;
+  const Clock& clock = SteadyClock::Instance();
+  lm.Start(&out, &clock);
+  const Pose X_WA = sc.ProbeAt(0.003);
+  lm.OfferPatch(sc.Patch(X_WA, 0.01), clock.NowNs());
+  bool local = false;
+  for (std::uint64_t seq = 1; seq < 5000 && !local; ++seq) {
+    lm.OfferSample(sc.Sample(X_WA, seq, clock.NowNs()));
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    while (out.Fetch()) {
+      if (out.front().source == kIrSourceLocal && out.front().num_rows > 0) local = true;
+    }
+  }
+  lm.Stop();
+  EXPECT_TRUE(local) << "no local answer within 5000 samples";
+  EXPECT_EQ(lm.stats().patches, 1u);
+  EXPECT_GT(lm.stats().local_answers, 0u);
 }
 
 }  // namespace
