@@ -279,19 +279,9 @@ bool PatchView::Covers(std::span<const Vec3> points_W, std::int64_t server_t_ns)
   return true;
 }
 
-bool PatchStore::Covers(std::span<const Vec3> points_W, std::int64_t server_t_ns) const {
-  if (!have_patch_) return false;
-  for (const Vec3& p : points_W) {
-    if ((p - center_W_).norm() > radius_) return false;
-  }
-  for (const auto& [id, body] : bodies_) {
-    const Pose X_WB = PatchBodyPoseAt(body.meta, server_t_ns);
-    for (const Vec3& p : points_W) {
-      const Vec3 p_B = X_WB.R.transpose() * (p - X_WB.t);
-      if ((p_B - body.meta.cover_center_B).norm() > body.meta.cover_radius) return false;
-    }
-  }
-  return true;
+bool PatchStore::Covers(std::span<const Vec3> points_W, std::int64_t server_t_ns) {
+  const auto view = View();
+  return view && view->Covers(points_W, server_t_ns);
 }
 
 // --- the IR of a contact model

@@ -149,9 +149,8 @@ class PatchStore {
   void Bodies(std::int64_t server_t_ns, std::vector<pd::SceneBody>* out,
               std::vector<std::uint64_t>* keys);
 
-  /// True when every point (W) lies in the region and in the cover of
-  /// every held body at server time t.
-  bool Covers(std::span<const Vec3> points_W, std::int64_t server_t_ns) const;
+  /// View()->Covers (tests).
+  bool Covers(std::span<const Vec3> points_W, std::int64_t server_t_ns);
 
  private:
   struct Body {
