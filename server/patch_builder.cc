@@ -23,6 +23,12 @@ double TriangleDistance(const pd::Mesh& mesh, Index f, const Vec3& p_M) {
       .norm();
 }
 
+double CornerReach(const pd::GeometryModel& m) {
+  const pd::Aabb& box = m.mesh().bounds();
+  const Vec3 c = m.mass().p_MC;
+  return (box.lo - c).cwiseAbs().cwiseMax((box.hi - c).cwiseAbs()).norm();
+}
+
 }  // namespace
 
 PatchBuilder::PatchBuilder(pd::ModelPtr probe, std::size_t max_triangles_per_body,
@@ -30,6 +36,7 @@ PatchBuilder::PatchBuilder(pd::ModelPtr probe, std::size_t max_triangles_per_bod
     : probe_(std::move(probe)),
       limit_(std::max<std::size_t>(1, max_triangles_per_body)),
       probe_radius_(probe_->radius_about_com()),
+      probe_reach_(std::max(probe_radius_, CornerReach(*probe_))),
       min_margin_(min_margin > 0 ? min_margin
                                  : std::max(0.25 * probe_->mesh().bounding_radius(), 0.005)),
       max_margin_(std::max(min_margin_, kMaxMarginOverRadius * probe_radius_)) {}
@@ -93,7 +100,7 @@ bool PatchBuilder::Due(const PatchProbe& probe, std::uint64_t scene_revision,
   if (sequence_ == 0 || scene_revision != last_revision_) return true;
   if ((c_W - last_center_W_).norm() > 0.25 * last_margin_) return true;
   if (margin > 1.25 * last_margin_) return true;
-  const double R = probe_radius_ + margin;
+  const double R = probe_reach_ + margin;
   const double horizon = probe.round_trip_s + kPatchLatencyS;
   const bool resend = probe.now_ns - last_time_ns_ >= kMovingResendNs;
   for (const PatchBody& pb : bodies) {
@@ -111,7 +118,7 @@ bool PatchBuilder::Build(const PatchProbe& probe, std::uint64_t scene_revision,
   const Vec3 c_W = probe.X_WA * probe_->mass().p_MC;
   const double margin = Margin(probe.round_trip_s);
   if (!Due(probe, scene_revision, bodies, c_W, margin)) return false;
-  const double R = probe_radius_ + margin;
+  const double R = probe_reach_ + margin;
   const double horizon = probe.round_trip_s + kPatchLatencyS;
   out->Clear();
   out->set_sequence(++sequence_);

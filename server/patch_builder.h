@@ -3,8 +3,10 @@
 // (v1::GeometryPatch) that keep that true as the probe and the bodies move.
 //
 // The region is a sphere of W about the probe's centre of mass, of radius
-// the probe's radius about its centre of mass plus a margin that grows with
-// the probe's speed times the time a patch takes to reach the client. For
+// the probe's reach (the farthest corner of its mesh bounding box from its
+// centre of mass: the client tests those corners, device/local_model.h)
+// plus a margin that grows with the probe's speed times the time a patch
+// takes to reach the client. For
 // every body reaching into it, the client holds every triangle within the
 // body's cover (a sphere of the body's mesh frame: the region, seen from the
 // body, widened by the body's own motion until the next patch), up to a
@@ -85,7 +87,12 @@ class PatchBuilder {
   /// The margin (m) and region radius (m) a patch cut for this round trip
   /// would use now.
   double Margin(double round_trip_s) const;
-  double RegionRadius(double round_trip_s) const { return probe_radius_ + Margin(round_trip_s); }
+  double RegionRadius(double round_trip_s) const { return probe_reach_ + Margin(round_trip_s); }
+  /// m, the farthest corner of the probe's mesh bounding box from its centre
+  /// of mass: the client holds the patch to cover the probe when those
+  /// corners lie in the region, so the region's radius starts from here
+  /// (the mesh's radius about the centre of mass is up to sqrt(3) shorter).
+  double probe_reach() const { return probe_reach_; }
 
  private:
   /// What the client holds of one body.
@@ -116,6 +123,7 @@ class PatchBuilder {
   const pd::ModelPtr probe_;
   const std::size_t limit_;
   const double probe_radius_;  // about the centre of mass
+  const double probe_reach_;   // bounding-box corners about the centre of mass
   const double min_margin_;
   const double max_margin_;
 

@@ -79,7 +79,10 @@ TEST(GeometryPatch, FirstPatchHoldsExactlyTheTrianglesWithinTheRegion) {
   SessionWorker w(server::Limits{}, "s1");
   v1::Welcome welcome;
   ASSERT_TRUE(w.Start(PatchHello(), s.scene, &welcome).ok());
-  const double r = w.probe()->radius_about_com();
+  // The probe's reach: its bounding box's farthest corner from the centre
+  // of mass (the client tests those corners), sqrt(3) radii for a sphere.
+  const double r = w.patch_builder()->probe_reach();
+  EXPECT_NEAR(r, std::sqrt(3.0) * w.probe()->radius_about_com(), 1e-3);
   const Vec3 c_W = s.Above(0.004);
   const auto patch = AnswerAndPatch(w, Pose1(c_W, 1));
   ASSERT_TRUE(patch);
@@ -272,7 +275,7 @@ TEST(GeometryPatch, BadPatchRequestIsRejectedNamingTheField) {
   EXPECT_EQ(w.patch_builder()->min_margin(), 0.02);
   const auto patch = AnswerAndPatch(w, Pose1(s.Above(0.004), 1));
   ASSERT_TRUE(patch);
-  EXPECT_NEAR(patch->radius(), w.probe()->radius_about_com() + 0.02, 1e-12);
+  EXPECT_NEAR(patch->radius(), w.patch_builder()->probe_reach() + 0.02, 1e-12);
 }
 
 TEST(GeometryPatch, MarginFollowsSpeedAndRoundTripWithinItsBounds) {
