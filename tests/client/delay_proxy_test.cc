@@ -176,5 +176,79 @@ TEST(LinkDelay, LossyLinkStaysPassive) {
   ExpectBoundedAndPassive(kDelayMs, r);
 }
 
+TEST(LinkDelay, ThinPlateForceNeverFlipsInsideAt100MsWithTheLocalModel) {
+  // DeviceE2e.ThinPlateForceNeverFlipsInside (client_tests) through an emulated 100 ms
+  // one-way link (200 ms round trip) with the local model on: the plate is
+  // rendered from the patch at the proxy's newest pose, so the proxy stays
+  // on top however late the server's answers are.
+  testing::Rig rig;
+  testing::AddBody(*rig.server, "plate:0.2,0.2,0.004", "plate", testing::MakePose(0, 0, 0), 20000);
+  constexpr double kTop = 0.002;
+  device::ScriptParams sp;
+  sp.script = HandScript::kPlate;
+  sp.X_DS = device::Pose::FromTranslation(Vec3(0, 0, kTop + kProbeRadius + 0.005));
+  sp.travel = 0.08;
+  sp.duration_s = 2.5;
+  sp.hold_s = 0.6;  // the first patch takes a round trip (and some) to come
+  client::LinkOptions link;
+  link.delay_ms = 100;
+  client::SessionOptions o = testing::Options(rig.server->port());
+  o.local_model = true;
+  o.link = link;
+  rig.session = std::make_unique<client::Session>(o);
+  rig.session->Connect();
+  rig.device = std::make_unique<device::SimulatedDevice>(sp, &device::SteadyClock::Instance());
+  rig.device->Open();
+  device::ServoConfig config;
+  config.X_PA = rig.session->X_PA();
+  rig.loop = std::make_unique<ServoLoop>(rig.device.get(), config);
+  rig.session->Start(rig.loop.get());
+  testing::LateTickWindow late_window;
+  int settling = 0;
+  int inside = 0, below = 0, local_inside = 0;
+  double max_fz = 0, min_fz_inside = 1e9, min_proxy_z = 1e9, min_handle_z = 1e9;
+  double min_contact_fz = 1e9;
+  testing::RunTicks(*rig.loop, 3200, [&](const TickRecord& r) {
+    const bool after_late = late_window(r);
+    const double fz = r.F_cmd_D.force.z();  // on the hand: +z pushes back up
+    max_fz = std::max(max_fz, fz);
+    min_contact_fz = std::min(min_contact_fz, r.W_ir.head<3>().z());
+    if (r.X_WH.t.z() - kProbeRadius < kTop) {
+      ++inside;
+      if (r.ir.source == device::kIrSourceLocal && !r.ir.stale) ++local_inside;
+      if (after_late) {
+        ++settling;
+      } else {
+        min_fz_inside = std::min(min_fz_inside, fz);
+      }
+      if (r.X_WH.t.z() < -kTop) ++below;
+    }
+    min_proxy_z = std::min(min_proxy_z, r.proxy.X_WP.t.z());
+    min_handle_z = std::min(min_handle_z, r.X_WH.t.z());
+    return true;
+  });
+  const client::SessionStats st = rig.session->stats();
+  std::printf(
+      "plate at 100 ms: %d ticks inside (%d from the local model), %d below; max force %.2f N; "
+      "lowest proxy %.2f mm; %llu patches, %llu local answers\n",
+      inside, local_inside, below, max_fz, 1e3 * min_proxy_z,
+      static_cast<unsigned long long>(st.local.patches),
+      static_cast<unsigned long long>(st.local.local_answers));
+  ASSERT_GT(inside, 300) << "the hand never reached the plate";
+  EXPECT_EQ(st.bad_updates, 0u);
+  EXPECT_EQ(st.local.bad_patches, 0u) << st.local.last_problem;
+  EXPECT_LE(max_fz, 12.0 + 1e-9) << "over the device's force limit";
+  // The contact pushes the proxy up (+z) or not at all, on every tick.
+  EXPECT_GE(min_contact_fz, 0.0);
+  EXPECT_GT(local_inside, inside / 2) << "the plate was mostly not rendered from the patch";
+  EXPECT_GT(below, 100) << "the hand never went through the plate; lowest handle centre "
+                        << min_handle_z;
+  EXPECT_GT(max_fz, 1.0);
+  EXPECT_GT(min_fz_inside, -1e-2) << late_window.late_ticks() << " ticks delayed by over 3 ms";
+  EXPECT_GT(inside - settling, inside / 10)
+      << "too many delayed ticks for the check to mean much (" << late_window.late_ticks() << ")";
+  EXPECT_GT(min_proxy_z, 0.0) << "the proxy popped through the plate";
+}
+
 }  // namespace
 }  // namespace hapticpd
