@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <memory>
@@ -264,10 +265,12 @@ TEST(LocalModelE2e, AMovingBodyIsFeltWhereItIs) {
   // The loop's clock is the steady clock, and so is the in-process
   // server's: the body's pose time lies between these two.
   const auto& clock = device::SteadyClock::Instance();
-  std::int64_t t_call0 = 0, t_call1 = 0;
+  // Written by the mover thread while the loop runs: atomics.
+  std::atomic<std::int64_t> t_call0_atomic{0};
+  std::int64_t t_call1 = 0;
   grpc::Status moved;
   std::thread mover([&] {
-    t_call0 = clock.NowNs();
+    t_call0_atomic.store(clock.NowNs());
     moved = MoveWithVelocity(*scenes, "lift", MakePose(0, 0, block_z0), Vec3(0, 0, kSpeed));
     t_call1 = clock.NowNs();
   });
@@ -277,7 +280,9 @@ TEST(LocalModelE2e, AMovingBodyIsFeltWhereItIs) {
   std::int64_t first_ns = -1;  // the first tick rendering local rows
   double first_depth = 0, max_depth = 0, force_at_first = 0, max_force = 0;
   int before_rows = 0;  // ticks with rows before the body could have arrived
+  std::int64_t t_call0 = 0;
   RunTicks(loop, 2000, [&](const TickRecord& r) {
+    if (t_call0 == 0) t_call0 = t_call0_atomic.load();
     if (t_call0 == 0) return true;  // the call has not started yet
     const double since_call_s = 1e-9 * static_cast<double>(r.time_ns - t_call0);
     const bool rows = r.ir.have_ir && !r.ir.stale && r.ir.active_rows > 0;
@@ -296,6 +301,7 @@ TEST(LocalModelE2e, AMovingBodyIsFeltWhereItIs) {
     return true;
   });
   mover.join();
+  t_call0 = t_call0_atomic.load();
   ASSERT_TRUE(moved.ok()) << moved.error_message();
   // Stop the block before the rig goes down.
   EXPECT_TRUE(MoveWithVelocity(*scenes, "lift", MakePose(0, 0, block_z0), Vec3::Zero()).ok());
