@@ -12,9 +12,9 @@
 //     0.05 N; real time on a loaded machine needs the margin);
 //   - the delay adds no energy: every run's passivity observer stays
 //     within the tolerance of its 0 ms run's.
-// With server answers only (the local model off) the same press at 100 ms
-// reaches about half the force (1.36 N against 2.82 N measured): the last
-// test shows the model is what keeps it.
+// With server answers only (the local model off) the proxy of the same
+// press at 100 ms sinks 10-11 mm into the box (2.8 mm at 0 ms): the last
+// test shows the model is what keeps the surface.
 #include <gtest/gtest.h>
 
 #include <cstdio>
@@ -71,10 +71,14 @@ TEST(LocalModelDelay, WithoutTheLocalModelThePressIsSoftAtOneHundredMs) {
   ASSERT_EQ(report.runs.size(), 2u);
   const bench::DelayRun& r0 = report.runs[0];
   const bench::DelayRun& r100 = report.runs[1];
-  std::printf("server answers only: peak %.2f N at 0 ms, %.2f N at 100 ms\n", r0.peak_force,
-              r100.peak_force);
+  std::printf(
+      "server answers only: peak %.2f N at 0 ms, %.2f N at 100 ms; proxy depth %.2f mm, %.2f mm\n",
+      r0.peak_force, r100.peak_force, 1e3 * r0.proxy_max_depth, 1e3 * r100.proxy_max_depth);
   EXPECT_EQ(r100.from_patch, 0.0);
-  EXPECT_LT(r100.peak_force, 0.8 * r0.peak_force);
+  // The peak force without the model swings from run to run (0.4-3 N: the
+  // rows fade and return); the proxy sinking into the box does not (10-11
+  // mm measured against 2.8 mm at 0 ms).
+  EXPECT_GT(r100.proxy_max_depth, r0.proxy_max_depth + 0.002);
 }
 
 }  // namespace
