@@ -388,6 +388,26 @@ bool LocalContactModel::Covered(const Pose& X_WP, std::int64_t server_t) {
   return view_now_->Covers(corners_W_, server_t);
 }
 
+bool LocalContactModel::Seed(const Pose& X_WB, pd::PdQueryData* data) const {
+  // The server's deepest row: its answer moved the probe about depth x
+  // normal from the pose it answered. A contact there, in the body's frame,
+  // is where a fresh query looks first (PDt's motion coherence).
+  if (!have_server_ || server_ir_.num_rows == 0) return false;
+  const IrRow* deepest = &server_ir_.rows[0];
+  for (int i = 1; i < server_ir_.num_rows; ++i) {
+    const IrRow& r = server_ir_.rows[static_cast<std::size_t>(i)];
+    if (r.depth > deepest->depth) deepest = &r;
+  }
+  const Pose X_WA = server_ir_.X_WP_ref * X_PA_;
+  const Pose X_BW = X_WB.Inverse();
+  pd::PdQueryData::CoherenceEntry e;
+  e.p_BAo = X_BW * (X_WA.t + deepest->depth * deepest->n_W);
+  e.R_BA = X_BW.R * X_WA.R;
+  e.dir_B = X_BW.R * deepest->n_W;
+  data->Remember(e);
+  return true;
+}
+
 void LocalContactModel::AnswerLocal(const ProxySample& x, std::int64_t now_ns,
                                     std::int64_t server_t, IntermediateRep* ir) {
   view_now_->Bodies(server_t, &bodies_, &keys_);
@@ -400,6 +420,11 @@ void LocalContactModel::AnswerLocal(const ProxySample& x, std::int64_t now_ns,
       data_.per_body[i] = pd::PdQueryData();
       data_.per_body_pdg[i] = pd::PdgQueryData();
       data_keys_[i] = keys_[i];
+      if (Seed(bodies_[i].X_WB, &data_.per_body[i])) {
+        (void)Seed(bodies_[i].X_WB, &data_.per_body_pdg[i].pdt);
+        std::lock_guard lock(stats_mu_);
+        ++stats_.seeded;
+      }
     }
   }
   const Pose X_WA = x.X_WP * X_PA_;

@@ -23,6 +23,10 @@
 //      `patch_quiet_s`, or broken), the server's answers are rendered as they
 //      arrive, exactly as without a local model; with neither, the IR goes
 //      stale and the servo loop fades the contact out.
+// The server's answer seeds the local query: a body's query state starts
+// afresh whenever its patch model is rebuilt, and then starts from the
+// server's newest answer (its deepest row as a remembered contact, PDt's
+// motion coherence), not from nothing.
 // The server's answer is the reference the local one is checked against:
 // when an answer arrives for a proxy sample the local model also answered,
 // their deepest rows are compared (LocalModelStats::reference_*); a
@@ -201,7 +205,10 @@ struct LocalModelStats {
   std::uint64_t local_answers = 0;  ///< rule 1
   std::uint64_t server_deeper = 0;  ///< rule 2
   std::uint64_t uncovered = 0;      ///< rule 3
-  std::uint64_t drops = 0;          ///< patches dropped (stream broken or quiet)
+  /// Fresh local query states (a new patch body) seeded with the server's
+  /// answer.
+  std::uint64_t seeded = 0;
+  std::uint64_t drops = 0;  ///< patches dropped (stream broken or quiet)
   std::size_t triangles_held = 0;
   double compute_p50_us = 0, compute_p99_us = 0, compute_max_us = 0;
   double rate_hz = 0;  ///< local answers per second of the worker's run
@@ -258,6 +265,9 @@ class LocalContactModel {
 
  private:
   bool Covered(const Pose& X_WP, std::int64_t server_t);
+  /// Seeds a fresh PDt query state with the server's newest answer (its
+  /// deepest row as a remembered contact); false without one.
+  bool Seed(const Pose& X_WB, pd::PdQueryData* data) const;
   /// Applies queued patches, resets and the quiet-stream drop to the store
   /// and publishes its view (the builder thread, or Step without Start).
   void ApplyQueued(std::int64_t now_ns);

@@ -519,3 +519,44 @@ TEST(LocalModel, ThreadedWorkerAnswersFromPatchesBuiltInTheBackground) {
 
 }  // namespace
 }  // namespace hapticpd::device
+
+namespace hapticpd::device {
+namespace {
+
+// A body's query state starts from the server's answer when its patch model
+// is new, and the seeded query answers as the cold one does.
+TEST(LocalModel, AFreshPatchQueryIsSeededWithTheServersAnswer) {
+  Scene sc;
+  const Pose X_WA = sc.ProbeAt(0.004);
+  auto run = [&](bool with_server) {
+    LocalContactModel lm(sc.probe, sc.X_PA(), LocalModelOptions{});
+    IrMailbox out;
+    std::int64_t t = 1'000'000'000;
+    if (with_server) {
+      IntermediateRep server;
+      server.receive_time_ns = t;
+      server.num_rows = 1;
+      server.rows[0].n_W = Vec3::UnitZ();
+      server.rows[0].depth = 0.004;
+      server.rows[0].stiffness = 1000;
+      server.X_WP_ref = sc.Sample(X_WA, 1, t).X_WP;
+      lm.OfferServerIr(server);
+    }
+    lm.OfferPatch(sc.Patch(X_WA, 0.01), t);
+    lm.OfferSample(sc.Sample(X_WA, 2, t));
+    EXPECT_TRUE(lm.Step(t, &out));
+    EXPECT_TRUE(out.Fetch());
+    EXPECT_EQ(out.front().source, kIrSourceLocal);
+    EXPECT_GE(out.front().num_rows, 1);
+    return std::pair{lm.stats().seeded, out.front().rows[0].depth};
+  };
+  const auto [seeded_cold, depth_cold] = run(false);
+  const auto [seeded, depth] = run(true);
+  EXPECT_EQ(seeded_cold, 0u);
+  EXPECT_EQ(seeded, 1u);
+  EXPECT_NEAR(depth, 0.004, 1e-6);
+  EXPECT_NEAR(depth, depth_cold, 1e-9);
+}
+
+}  // namespace
+}  // namespace hapticpd::device
