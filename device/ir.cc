@@ -119,6 +119,9 @@ void IrEvaluator::Accept(const IntermediateRep& ir, const Pose& X_WP) {
   EvaluateIrShifted(ir_, X_WP, shift_, &W_new, &K, nullptr);
   // First IR: nothing to blend from (the fade-in ramps it).
   offset_ = has_ir_ ? Vec6(W_old - W_new) : Vec6::Zero();
+  // Two answers that agree leave round-off (1e-17 N), which would let a
+  // contact that only ever pushes read as a tiny pull.
+  if (offset_.cwiseAbs().maxCoeff() < 1e-9) offset_.setZero();
   blend_tick_ = 0;
   has_ir_ = true;
 }

@@ -96,11 +96,13 @@ TEST(DeviceE2e, ThinPlateForceNeverFlipsInside) {
   // Never pulls the hand down (through) while it is inside or under the
   // plate: the proxy stays on the top side, so the push is always up. As the
   // hand rises out of the plate the proxy follows it freely (no drag: free
-  // space feels free), so the force there is zero give or take the coupling
-  // damper's tug after a delayed tick: a few mN under TSan. 10 mN is under
-  // anything a hand feels and a fifth of the free-space bound; a proxy
-  // pulled through pulls by hundreds of mN.
-  EXPECT_GT(min_fz_inside, -1e-2) << late_window.late_ticks() << " ticks delayed by over 3 ms";
+  // space feels free), so the force there is the 10 g proxy's inertia as the
+  // released contact lets it catch up with the accelerating hand (10.7-10.9
+  // mN measured, since the contact wrench follows the proxy without the
+  // blend's lag), give or take the coupling damper's tug after a delayed
+  // tick. 20 mN is under anything a hand feels and under the free-space
+  // bound; a proxy pulled through pulls by hundreds of mN.
+  EXPECT_GT(min_fz_inside, -2e-2) << late_window.late_ticks() << " ticks delayed by over 3 ms";
   EXPECT_GT(inside - settling, inside / 10)
       << "too many delayed ticks for the check to mean much (" << late_window.late_ticks() << ")";
   // The contact itself pushes the proxy up (+z) or not at all, on every tick.
