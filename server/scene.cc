@@ -202,19 +202,7 @@ void Scene::CopyProbes(std::vector<ProbeCopy>* out) const {
 
 grpc::Status SceneRegistry::Create(const std::string& id, const std::string& description,
                                    std::size_t max_scenes, ScenePtr* out) {
-  std::lock_guard lock(mu_);
-  if (scenes_.count(id)) {
-    return grpc::Status(grpc::StatusCode::ALREADY_EXISTS, "scene_id: scene '" + id + "' exists");
-  }
-  if (scenes_.size() >= max_scenes) {
-    return grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
-                        "scene_id: the server already hosts " + std::to_string(scenes_.size()) +
-                            " scenes (limit " + std::to_string(max_scenes) + ")");
-  }
-  auto scene = std::make_shared<Scene>(id, description, signal_);
-  scenes_.emplace(id, scene);
-  if (out) *out = std::move(scene);
-  return grpc::Status::OK;
+  return Create(id, description, v1::SceneConfig(), max_scenes, out, nullptr);
 }
 
 grpc::Status SceneRegistry::Create(const std::string& id, const std::string& description,
