@@ -79,6 +79,18 @@ struct Scene {
     s.X_WP = X_WA * X_PA().Inverse();
     return s;
   }
+  /// A server answer for the probe at X_WA: one upward row, arrived at t.
+  IntermediateRep ServerAnswer(const Pose& X_WA, double depth, double stiffness,
+                               std::int64_t t_ns) const {
+    IntermediateRep ir;
+    ir.receive_time_ns = t_ns;
+    ir.num_rows = 1;
+    ir.rows[0].n_W = Vec3::UnitZ();
+    ir.rows[0].depth = depth;
+    ir.rows[0].stiffness = stiffness;
+    ir.X_WP_ref = Sample(X_WA, 1, t_ns).X_WP;
+    return ir;
+  }
 };
 
 TEST(PatchStore, HoldsWhatWasSentAndCoversTheProbe) {
@@ -253,13 +265,7 @@ TEST(LocalModel, AnswersLocallyWhereThePatchCoversAndFallsBackWhereItDoesNot) {
   std::int64_t t = 1'000'000'000;
   // No patch yet: a server answer is passed through, the sample is
   // uncovered.
-  IntermediateRep server;
-  server.receive_time_ns = t;
-  server.num_rows = 1;
-  server.rows[0].n_W = Vec3::UnitZ();
-  server.rows[0].depth = 0.002;
-  server.rows[0].stiffness = 500;
-  server.X_WP_ref = sc.Sample(X_WA, 1, t).X_WP;
+  IntermediateRep server = sc.ServerAnswer(X_WA, 0.002, 500, t);
   lm.OfferServerIr(server);
   lm.OfferSample(sc.Sample(X_WA, 1, t));
   ASSERT_TRUE(lm.Step(t, &out));
@@ -373,13 +379,7 @@ TEST(LocalModel, ProbeDeeperThanThePatchCanTellGetsTheServersAnswer) {
   ASSERT_TRUE(d.bodies[0].triangle_indices.empty());
   std::int64_t t = 1'000'000'000;
   lm.OfferPatch(d, t);
-  IntermediateRep server;
-  server.receive_time_ns = t;
-  server.num_rows = 1;
-  server.rows[0].n_W = Vec3::UnitZ();
-  server.rows[0].depth = 0.3;
-  server.rows[0].stiffness = 1000;
-  server.X_WP_ref = sc.Sample(X_WA, 1, t).X_WP;
+  IntermediateRep server = sc.ServerAnswer(X_WA, 0.3, 1000, t);
   lm.OfferServerIr(server);
   lm.OfferSample(sc.Sample(X_WA, 1, t));
   ASSERT_TRUE(lm.Step(t, &out));
@@ -533,13 +533,7 @@ TEST(LocalModel, AFreshPatchQueryIsSeededWithTheServersAnswer) {
     IrMailbox out;
     std::int64_t t = 1'000'000'000;
     if (with_server) {
-      IntermediateRep server;
-      server.receive_time_ns = t;
-      server.num_rows = 1;
-      server.rows[0].n_W = Vec3::UnitZ();
-      server.rows[0].depth = 0.004;
-      server.rows[0].stiffness = 1000;
-      server.X_WP_ref = sc.Sample(X_WA, 1, t).X_WP;
+      IntermediateRep server = sc.ServerAnswer(X_WA, 0.004, 1000, t);
       lm.OfferServerIr(server);
     }
     lm.OfferPatch(sc.Patch(X_WA, 0.01), t);
