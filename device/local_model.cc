@@ -33,13 +33,7 @@ double MaxRowDepth(const IntermediateRep& ir) {
 
 Pose PatchBodyPoseAt(const PatchBodyDelta& b, std::int64_t t_ns) {
   if (b.v_W.isZero(0) && b.w_W.isZero(0)) return b.X_WB;
-  const double dt = 1e-9 * static_cast<double>(t_ns - b.pose_time_ns);
-  Pose X = b.X_WB;
-  X.t += dt * b.v_W;
-  const Vec3 rot = dt * b.w_W;
-  const double angle = rot.norm();
-  if (angle > 0) X.R = Eigen::AngleAxisd(angle, rot / angle).toRotationMatrix() * X.R;
-  return X;
+  return MovedPose(b.X_WB, b.v_W, b.w_W, 1e-9 * static_cast<double>(t_ns - b.pose_time_ns));
 }
 
 // --- PatchStore

@@ -47,6 +47,19 @@ struct Pose {
   Quat Rotation() const { return Quat(R); }
 };
 
+/// A body frame X_WB carried `dt` seconds along the twist (v_W, w_W), both
+/// in W: the translation moves by v dt, the orientation turns by the
+/// rotation vector w dt (left-multiplied). The one definition of where a
+/// moving body is, shared by the server's PD and the device's patches.
+inline Pose MovedPose(const Pose& X_WB, const Vec3& v_W, const Vec3& w_W, double dt) {
+  Pose X = X_WB;
+  X.t += dt * v_W;
+  const Vec3 theta = dt * w_W;
+  const double angle = theta.norm();
+  if (angle > 0) X.R = Eigen::AngleAxisd(angle, theta / angle).toRotationMatrix() * X.R;
+  return X;
+}
+
 /// A force/torque pair; the frame and the point the torque is taken about are
 /// part of the variable name (e.g. `F_Pcm_W`: on P about its centre of mass,
 /// expressed in W).

@@ -11,13 +11,7 @@ bool Moving(const BodyState& b) { return !b.v_W.isZero(0.0) || !b.w_W.isZero(0.0
 
 Pose PoseAt(const BodyState& b, std::int64_t t_ns) {
   if (!Moving(b)) return b.X_WB;
-  const double dt = static_cast<double>(t_ns - b.pose_time_ns) * 1e-9;
-  Pose X = b.X_WB;
-  X.t += b.v_W * dt;
-  const Vec3 theta = b.w_W * dt;  // rotation vector, W
-  const double angle = theta.norm();
-  if (angle > 0) X.R = Eigen::AngleAxisd(angle, theta / angle).toRotationMatrix() * X.R;
-  return X;
+  return MovedPose(b.X_WB, b.v_W, b.w_W, static_cast<double>(t_ns - b.pose_time_ns) * 1e-9);
 }
 
 const BodyState* SceneSnapshot::Find(const std::string& id) const {
