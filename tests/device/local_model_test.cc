@@ -449,12 +449,6 @@ TEST(LocalModel, AQuietStreamDropsThePatch) {
   EXPECT_EQ(lm.stats().drops, 1u);
 }
 
-}  // namespace
-}  // namespace hapticpd::device
-
-namespace hapticpd::device {
-namespace {
-
 TEST(LocalModel, TheServersAnswerIsCheckedAgainstTheLocalAnswerToTheSameSample) {
   Scene sc;
   LocalContactModel lm(sc.probe, sc.X_PA(), LocalModelOptions{});
@@ -487,12 +481,6 @@ TEST(LocalModel, TheServersAnswerIsCheckedAgainstTheLocalAnswerToTheSameSample) 
   EXPECT_NEAR(s.reference_diff_max_mm, 1.0, 0.05);
 }
 
-}  // namespace
-}  // namespace hapticpd::device
-
-namespace hapticpd::device {
-namespace {
-
 // With Start(), patches are applied and built on their own thread while the
 // worker keeps answering from the previous view.
 TEST(LocalModel, ThreadedWorkerAnswersFromPatchesBuiltInTheBackground) {
@@ -516,12 +504,6 @@ TEST(LocalModel, ThreadedWorkerAnswersFromPatchesBuiltInTheBackground) {
   EXPECT_EQ(lm.stats().patches, 1u);
   EXPECT_GT(lm.stats().local_answers, 0u);
 }
-
-}  // namespace
-}  // namespace hapticpd::device
-
-namespace hapticpd::device {
-namespace {
 
 // A body's query state starts from the server's answer when its patch model
 // is new, and the seeded query answers as the cold one does.
