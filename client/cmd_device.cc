@@ -259,7 +259,7 @@ void RunDevice(const DeviceOptions& o) {
                       {"patches", ss.local.patches},
                       {"bad_patches", ss.local.bad_patches},
                       {"patch_bytes", ss.local.patch_bytes},
-                      {"triangles_held", ss.local.triangles_held},
+                      {"max_triangles_held", ss.local.max_triangles_held},
                       {"answers", ss.local.local_answers},
                       {"server_deeper", ss.local.server_deeper},
                       {"uncovered", ss.local.uncovered},
@@ -314,10 +314,10 @@ void RunDevice(const DeviceOptions& o) {
       static_cast<unsigned long long>(s.ticks_faded), ss.local_model_note.c_str());
   if (ss.local_model) {
     std::printf(
-        ": %llu patches (%.0f kB, %zu triangles held), %.0f answers/s, PD p50 %.0f us "
+        ": %llu patches (%.0f kB, %zu triangles held at most), %.0f answers/s, PD p50 %.0f us "
         "p99 %.0f us",
         static_cast<unsigned long long>(ss.local.patches), 1e-3 * ss.local.patch_bytes,
-        ss.local.triangles_held, ss.local.rate_hz, ss.local.compute_p50_us,
+        ss.local.max_triangles_held, ss.local.rate_hz, ss.local.compute_p50_us,
         ss.local.compute_p99_us);
     std::printf(", %llu of %llu server answers disagree with it",
                 static_cast<unsigned long long>(ss.local.reference_disagreements),

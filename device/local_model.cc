@@ -492,6 +492,7 @@ void LocalContactModel::ApplyQueued(std::int64_t now_ns) {
     stats_.last_problem = problem;
   }
   stats_.triangles_held = store_.triangles_held();
+  stats_.max_triangles_held = std::max(stats_.max_triangles_held, stats_.triangles_held);
 }
 
 bool LocalContactModel::Step(std::int64_t now_ns, IrMailbox* out) {

@@ -208,8 +208,9 @@ struct LocalModelStats {
   /// Fresh local query states (a new patch body) seeded with the server's
   /// answer.
   std::uint64_t seeded = 0;
-  std::uint64_t drops = 0;  ///< patches dropped (stream broken or quiet)
-  std::size_t triangles_held = 0;
+  std::uint64_t drops = 0;             ///< patches dropped (stream broken or quiet)
+  std::size_t triangles_held = 0;      ///< now
+  std::size_t max_triangles_held = 0;  ///< the most at once
   double compute_p50_us = 0, compute_p99_us = 0, compute_max_us = 0;
   double rate_hz = 0;  ///< local answers per second of the worker's run
   /// Server answers compared with the local answer to the same sample, how
