@@ -14,7 +14,19 @@ PACKAGES=(
   libsqlite3-dev libssl-dev  # the server's state directory (server/store.h)
   libfcl-dev libccd-dev libbullet-dev
   clang libclang-rt-14-dev  # the `fuzz` preset: clang and its libFuzzer/ASan runtimes
+  libboost-dev libjs-three  # `hapticpd view`: Boost.Beast (HTTP + WebSocket) and three.js for its page
+  chromium-headless-shell   # tests/browser (label `browser`) and tests/bench/bench_view.mjs
 )
+
+# Node.js and npm for tests/browser (puppeteer-core, `npm ci` at build time):
+# Debian's nodejs and npm only where no `node` is installed. A node from
+# elsewhere (e.g. NodeSource) brings its own npm, and Debian's npm package
+# conflicts with it.
+if ! command -v node >/dev/null 2>&1; then
+  PACKAGES+=(nodejs npm)
+elif ! command -v npm >/dev/null 2>&1; then
+  PACKAGES+=(npm)
+fi
 
 SUDO=""
 if [ "$(id -u)" -ne 0 ]; then
