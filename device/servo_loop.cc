@@ -38,12 +38,41 @@ const char* ToString(DeviceStatus s) {
   return "?";
 }
 
+const char* ToString(TickSource s) {
+  switch (s) {
+    case TickSource::kServer:
+      return "server";
+    case TickSource::kLocal:
+      return "local";
+    case TickSource::kFaded:
+      return "faded";
+  }
+  return "?";
+}
+
+const char* ToString(FailSafe s) {
+  switch (s) {
+    case FailSafe::kWaiting:
+      return "waiting";
+    case FailSafe::kRamping:
+      return "ramping";
+    case FailSafe::kOk:
+      return "ok";
+    case FailSafe::kFading:
+      return "fading";
+    case FailSafe::kStale:
+      return "stale";
+  }
+  return "?";
+}
+
 ServoLoop::ServoLoop(HapticDevice* device, const ServoConfig& config, const Clock* clock)
     : device_(device),
       config_(config),
       clock_(clock),
       coupling_(config.coupling ? *config.coupling : ChooseCoupling(device->info(), config.design)),
-      eval_(config.ir) {
+      eval_(config.ir),
+      samples_(config.sample_ring_capacity) {
   // Compose the declared effects once; a scene without torque renders 3-DoF.
   EffectParams fx = config_.effect_params;
   fx.proxy_mass = coupling_.proxy.mass;
@@ -90,6 +119,9 @@ void ServoLoop::Tick(std::int64_t now_ns) {
     r.F_cmd_D = Wrench{};
     r.F_cmd_W = Wrench{};
     device_->Command(r.F_cmd_D);
+    r.source = TickSource::kFaded;
+    r.fail_safe = FailSafeOf(r);
+    PushSample(r);
     ++stats_.ticks;
     return;
   }
@@ -164,10 +196,13 @@ void ServoLoop::Tick(std::int64_t now_ns) {
   r.link_gain = link_gain_;
   if (!r.ir.have_ir || r.ir.fade <= 0 || link_gain_ <= 0) {
     ++stats_.ticks_faded;
+    r.source = TickSource::kFaded;
   } else if (r.ir.source == 1) {
     ++stats_.ticks_local;
+    r.source = TickSource::kLocal;
   } else {
     ++stats_.ticks_server;
+    r.source = TickSource::kServer;
   }
   r.proxy = proxy_;
   r.W_coupling = CouplingWrench(coupling_.gains, r.X_WH, v_WH, w_WH, proxy_, &r.clamped);
@@ -185,6 +220,7 @@ void ServoLoop::Tick(std::int64_t now_ns) {
     startup_gain_ = su.ramp_time_s > 0 ? std::min(1.0, startup_gain_ + h / su.ramp_time_s) : 1.0;
   }
   r.startup_gain = startup_gain_;
+  r.fail_safe = FailSafeOf(r);
 
   const double gain = startup_gain_ * link_gain_;
   r.F_cmd_W.force = internal::ClampNorm(-gain * r.W_coupling.force, coupling_.gains.max_force);
@@ -223,10 +259,31 @@ void ServoLoop::Tick(std::int64_t now_ns) {
   s.X_WH = r.X_WH;
   s.F_cmd_W = r.F_cmd_W;
   proxy_out_.Publish();
+  PushSample(r);
 
   ++stats_.ticks;
   live_.ticks.store(stats_.ticks, std::memory_order_relaxed);
   stats_.compute_us.Add(1e-3 * static_cast<double>(SteadyClock::Instance().NowNs() - t_begin));
+}
+
+FailSafe ServoLoop::FailSafeOf(const TickRecord& r) const {
+  if (!r.ir.have_ir) return FailSafe::kWaiting;
+  if (r.ir.stale) return link_gain_ > 0 ? FailSafe::kFading : FailSafe::kStale;
+  if (!engaged_) return FailSafe::kWaiting;
+  if (startup_gain_ < 1 || link_gain_ < 1) return FailSafe::kRamping;
+  return FailSafe::kOk;
+}
+
+void ServoLoop::PushSample(const TickRecord& r) {
+  if (config_.sample_ring_capacity == 0) return;
+  TickSample s;
+  s.time_ns = r.time_ns;
+  s.force = static_cast<float>(r.F_cmd_W.force.norm());
+  s.torque = static_cast<float>(r.F_cmd_W.torque.norm());
+  s.ir_age_ms = r.ir.have_ir ? static_cast<float>(r.ir.age_s * 1e3) : -1.0F;
+  s.source = r.source;
+  s.fail_safe = r.fail_safe;
+  samples_.Push(s);
 }
 
 void ServoLoop::Start() {

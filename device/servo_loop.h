@@ -22,6 +22,7 @@
 #include "device/haptic_device.h"
 #include "device/ir.h"
 #include "device/mailbox.h"
+#include "device/spsc_ring.h"
 #include "device/stats.h"
 
 namespace hapticpd::device {
@@ -38,6 +39,28 @@ struct ProxySample {
   Pose X_WH;       ///< the device handle, for observers
   Wrench F_cmd_W;  ///< wrench commanded on the handle this tick (W)
 };
+
+/// Which model a tick's contact came from (v1::ContactSource on the wire).
+enum class TickSource : std::uint8_t { kServer = 1, kLocal = 2, kFaded = 3 };
+/// The loop's output safety at a tick (v1::FailSafeState on the wire):
+/// waiting (no IR, or the start-up wait for a quiet command), ramping (the
+/// start-up ramp or the fade-in after a link loss), ok (full output on a
+/// fresh IR), fading (the IR went stale: output fading to zero), stale
+/// (faded out: zero output, the proxy held on the handle).
+enum class FailSafe : std::uint8_t { kWaiting = 1, kRamping = 2, kOk = 3, kFading = 4, kStale = 5 };
+const char* ToString(TickSource s);
+const char* ToString(FailSafe s);
+
+/// One tick as telemetry sees it (ServoLoop::samples()).
+struct TickSample {
+  std::int64_t time_ns = 0;  ///< loop clock at the tick
+  float force = 0;           ///< N, |F_cmd| commanded on the handle
+  float torque = 0;          ///< N m, |tau_cmd|
+  float ir_age_ms = -1;      ///< age of the IR rendered; < 0: no IR
+  TickSource source = TickSource::kFaded;
+  FailSafe fail_safe = FailSafe::kWaiting;
+};
+using SampleRing = SpscRing<TickSample>;
 
 using IrMailbox = LatestMailbox<IntermediateRep>;
 using ProxyMailbox = LatestMailbox<ProxySample>;
@@ -82,6 +105,9 @@ struct ServoConfig {
   /// Without kTorque the loop commands no torque (3-DoF rendering).
   EffectSet effects = EffectSet::Legacy();
   EffectParams effect_params;  ///< proxy_mass and period_s are set by the loop
+  /// Ticks the sample ring (ServoLoop::samples()) holds for its consumer; a
+  /// tick that finds it full is counted lost. 0: no ring, no samples.
+  std::size_t sample_ring_capacity = 4096;
 };
 
 /// Everything one tick saw and did (for tests, traces and the recorder).
@@ -104,6 +130,8 @@ struct TickRecord {
   bool clamped = false;
   /// StepProxy's contact weight this tick: 1 in or near contact, 0 free.
   double contact_weight = 1;
+  TickSource source = TickSource::kFaded;  ///< the model this tick's contact came from
+  FailSafe fail_safe = FailSafe::kWaiting;
 };
 
 /// Counters other threads may read while the loop runs.
@@ -129,6 +157,9 @@ class ServoLoop {
   IrMailbox& ir_mailbox() { return ir_in_; }
   /// Where proxy poses come out (one reader).
   ProxyMailbox& proxy_mailbox() { return proxy_out_; }
+  /// Every tick's sample, in order (one reader, e.g. a Session's telemetry
+  /// step); a tick that finds the ring full is counted in samples().lost().
+  SampleRing& samples() { return samples_; }
 
   /// One servo tick at time now_ns. No allocation, lock or logging.
   void Tick(std::int64_t now_ns);
@@ -158,6 +189,9 @@ class ServoLoop {
 
  private:
   void Run(std::stop_token st);
+  /// The output safety state after this tick's gains (r: this tick's record).
+  FailSafe FailSafeOf(const TickRecord& r) const;
+  void PushSample(const TickRecord& r);
 
   HapticDevice* device_;
   ServoConfig config_;
@@ -167,6 +201,7 @@ class ServoLoop {
   EffectPipeline effects_;
   IrMailbox ir_in_;
   ProxyMailbox proxy_out_;
+  SampleRing samples_;
   ServoStats stats_;
   LiveCounters live_;
   TickRecord rec_;
