@@ -1,5 +1,7 @@
 #include "server/observers.h"
 
+#include <algorithm>
+
 #include "server/convert.h"
 
 namespace hapticpd::server::internal {
@@ -37,6 +39,17 @@ void FillScene(const Scene& scene, const SceneSnapshot& snap, bool include_meshe
 }
 
 ObserverHub::ObserverHub(ScenePtr scene) : scene_(std::move(scene)) {
+  // The sessions already running: their observers' telemetry starts now
+  // (what they sent before is dropped). Done before the thread starts,
+  // which is from then on the feeds' one consumer.
+  probes_seen_ = scene_->probes_revision();
+  scene_->CopySessions(&scratch_);
+  const std::int64_t now_ns = NowNs();
+  for (const auto& slot : scratch_) {
+    slot->feed.Discard(now_ns);
+    sessions_.push_back(HubSession{slot, false, nullptr});
+  }
+  scratch_.clear();
   thread_ = std::thread([this] { Loop(); });
 }
 
@@ -69,14 +82,108 @@ bool ObserverHub::Idle() {
 void ObserverHub::Loop() {
   ChangeSignal& signal = scene_->changes();
   std::uint64_t seen = signal.count();
+  auto next_telemetry = Clock::now();
   while (!stop_.load()) {
     const auto now = Clock::now();
     auto next = now + std::chrono::milliseconds(100);
     {
       std::lock_guard lock(mu_);
+      const std::int64_t now_ns = NowNs();
+      SyncSessions();
+      if (!sessions_.empty()) {
+        if (now >= next_telemetry) {
+          PublishTelemetry(now_ns);
+          next_telemetry = now + kTelemetryPeriod;
+        }
+        next = std::min(next, next_telemetry);
+      }
       for (WatchReactor* r : observers_) next = std::min(next, r->Tick(now));
     }
     seen = signal.WaitFor(seen, std::max(next, now + std::chrono::microseconds(200)));
+  }
+}
+
+void ObserverHub::SyncSessions() {
+  if (const std::uint64_t rev = scene_->probes_revision(); rev != probes_seen_) {
+    probes_seen_ = rev;
+    scene_->CopySessions(&scratch_);
+    std::vector<std::size_t> added;
+    for (const auto& slot : scratch_) {
+      const bool known = std::any_of(sessions_.begin(), sessions_.end(),
+                                     [&](const HubSession& h) { return h.slot == slot; });
+      if (known) continue;
+      added.push_back(sessions_.size());
+      sessions_.push_back(HubSession{slot, false, nullptr});
+    }
+    for (HubSession& h : sessions_) {
+      if (std::find(scratch_.begin(), scratch_.end(), h.slot) == scratch_.end()) h.retired = true;
+    }
+    scratch_.clear();
+    if (!added.empty()) Announce(added, {}, nullptr);
+  }
+  // Observers new to the hub get the whole list first (even when empty).
+  for (WatchReactor* r : observers_) {
+    if (!r->wants_contacts() || r->sessions_listed) continue;
+    std::vector<std::size_t> all(sessions_.size());
+    for (std::size_t i = 0; i < all.size(); ++i) all[i] = i;
+    Announce(all, {}, r);
+    r->sessions_listed = true;
+  }
+}
+
+void ObserverHub::PublishTelemetry(std::int64_t now_ns) {
+  const bool wanted = std::any_of(observers_.begin(), observers_.end(),
+                                  [](const WatchReactor* r) { return r->wants_telemetry(); });
+  std::shared_ptr<v1::Telemetry> batch;
+  if (wanted) batch = std::make_shared<v1::Telemetry>();
+  const std::uint64_t revision = scene_->snapshot()->revision;
+  for (HubSession& h : sessions_) {
+    if (!batch) {
+      h.slot->feed.Discard(now_ns);
+      continue;
+    }
+    v1::SessionTelemetry* st = batch->add_sessions();
+    h.slot->feed.Take(now_ns, st);
+    st->set_session_id(h.slot->session_id);
+    st->set_scene_revision(revision);
+  }
+  if (batch) {
+    const std::shared_ptr<const v1::Telemetry> shared = std::move(batch);
+    for (WatchReactor* r : observers_) {
+      if (r->wants_telemetry()) r->Enqueue(HubEvent{shared, {}});
+    }
+  }
+  // Ended sessions had their last telemetry in this batch: now they go.
+  std::vector<std::string> removed;
+  std::erase_if(sessions_, [&](const HubSession& h) {
+    if (h.retired) removed.push_back(h.slot->session_id);
+    return h.retired;
+  });
+  if (!removed.empty()) Announce({}, removed, nullptr);
+}
+
+void ObserverHub::FillInfo(HubSession& s, bool with_mesh, v1::SessionInfo* out) {
+  if (!with_mesh || !s.slot->probe) {
+    *out = s.slot->info;
+    return;
+  }
+  if (!s.with_mesh) {
+    auto info = std::make_shared<v1::SessionInfo>(s.slot->info);
+    ToProto(s.slot->probe->mesh(), info->mutable_probe_mesh());
+    s.with_mesh = std::move(info);
+  }
+  *out = *s.with_mesh;
+}
+
+void ObserverHub::Announce(const std::vector<std::size_t>& added,
+                           const std::vector<std::string>& removed, WatchReactor* only) {
+  for (WatchReactor* r : observers_) {
+    if (only != nullptr ? r != only : (!r->wants_contacts() || !r->sessions_listed)) continue;
+    HubEvent e;
+    for (const std::size_t i : added)
+      FillInfo(sessions_[i], r->wants_meshes(), e.sessions.add_added());
+    for (const std::string& id : removed) e.sessions.add_removed(id);
+    r->Enqueue(std::move(e));
   }
 }
 
@@ -135,9 +242,12 @@ WatchReactor::WatchReactor(Core* core, grpc::CallbackServerContext* ctx, ScenePt
       ctx_(ctx),
       scene_(std::move(scene)),
       period_(PeriodOf(request.rate_hz())),
-      include_meshes_(request.include_meshes()) {
+      include_meshes_(request.include_meshes()),
+      include_contacts_(request.include_contacts()),
+      include_telemetry_(request.include_telemetry()) {
   core_->Register(this);  // core_->observers was counted by SceneServiceImpl::Watch
   ++scene_->observers;
+  if (include_contacts_) ++scene_->contact_watchers;
   GrpcHandOff(this);
   core_->publishers->Add(this);
 }
@@ -177,7 +287,8 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
   const SnapshotPtr snap = scene_->snapshot();
   const bool structural = last_ == nullptr || snap->structure_revision != last_->structure_revision;
   const bool pose_due = now >= next_pose_due_;
-  if (!structural && !pose_due) return std::min(next_pose_due_, stuck_at);
+  const bool queued = !queue_.empty();
+  if (!structural && !pose_due && !queued) return std::min(next_pose_due_, stuck_at);
   if (in_flight_) {
     // The observer has not taken the previous frame: skip this one.
     if (pose_due) {
@@ -191,6 +302,7 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
   msg_.set_revision(snap->revision);
   msg_.set_server_time_ns(NowNs());
   msg_.set_frames_dropped(dropped_);
+  msg_.set_observers(static_cast<std::uint32_t>(std::max(0, scene_->observers.load())));
   if (last_ == nullptr) {
     FillScene(*scene_, *snap, include_meshes_, msg_.mutable_snapshot());
   } else if (structural) {
@@ -203,7 +315,23 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
       const BodyState* now_b = snap->Find(b.id);
       if (now_b == nullptr || now_b->uid != b.uid) ch->add_removed(b.id);
     }
+  } else if (queued && !queue_.front().batch) {
+    // Sessions changes are never dropped and go before pose frames, so a
+    // probe is announced before it is drawn.
+    v1::SessionsChanged* ch = msg_.mutable_sessions();
+    ch->Swap(&queue_.front().sessions);
+    queue_.pop_front();
+    for (const auto& a : ch->added()) announced_.insert(a.session_id());
+    for (const auto& id : ch->removed()) announced_.erase(id);
+  } else if (queued && !(pose_due && !last_was_pose_)) {
+    // A telemetry batch (taking turns with pose frames when both wait).
+    v1::Telemetry* t = msg_.mutable_telemetry();
+    t->CopyFrom(*queue_.front().batch);
+    t->set_batches_dropped(batches_dropped_);
+    queue_.pop_front();
+    last_was_pose_ = false;
   } else {
+    last_was_pose_ = true;
     auto* poses = msg_.mutable_poses();
     for (const BodyState& b : snap->bodies) {
       auto* bp = poses->add_bodies();
@@ -214,6 +342,14 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
     }
     scene_->CopyProbes(&probes_);
     for (const auto& p : probes_) {
+      if (include_contacts_) {
+        // Only sessions this observer was told of; their answers in full.
+        if (announced_.count(p.session_id) == 0) continue;
+        if (p.full && p.full->sequence() == p.sequence) {
+          *poses->add_probes() = *p.full;
+          continue;
+        }
+      }
       auto* ps = poses->add_probes();
       ps->set_session_id(p.session_id);
       ToProto(p.X_WA, ps->mutable_pose());
@@ -230,6 +366,53 @@ Clock::time_point WatchReactor::Tick(Clock::time_point now) {
   // Under mu_: a forced Finish (cancellation) cannot slip in between.
   GrpcStart(this, [&] { StartWrite(&msg_); });
   return next_pose_due_;
+}
+
+namespace {
+/// `more` after `into`, as one change (a session added and removed before
+/// it was sent cancels out).
+void MergeSessions(v1::SessionsChanged* into, v1::SessionsChanged* more) {
+  for (auto& a : *more->mutable_added()) into->add_added()->Swap(&a);
+  for (const std::string& id : more->removed()) {
+    auto* added = into->mutable_added();
+    const auto it = std::find_if(added->begin(), added->end(),
+                                 [&](const v1::SessionInfo& a) { return a.session_id() == id; });
+    if (it != added->end()) {
+      added->erase(it);
+    } else {
+      into->add_removed(id);
+    }
+  }
+}
+}  // namespace
+
+void WatchReactor::Enqueue(HubEvent e) {
+  std::lock_guard lock(mu_);
+  if (finish_called_ || finish_wanted_) return;
+  if (!e.batch) {
+    // At most one sessions change between two batches.
+    if (!queue_.empty() && !queue_.back().batch) {
+      MergeSessions(&queue_.back().sessions, &e.sessions);
+    } else {
+      queue_.push_back(std::move(e));
+    }
+    return;
+  }
+  const auto is_batch = [](const HubEvent& q) { return q.batch != nullptr; };
+  if (static_cast<std::size_t>(std::count_if(queue_.begin(), queue_.end(), is_batch)) >=
+      kTelemetryQueueBatches) {
+    // Fallen behind: the oldest batch goes, whole; sessions changes stay.
+    auto next = queue_.erase(std::find_if(queue_.begin(), queue_.end(), is_batch));
+    ++batches_dropped_;
+    if (next != queue_.begin() && next != queue_.end() && !next->batch) {
+      auto prev = std::prev(next);
+      if (!prev->batch) {
+        MergeSessions(&prev->sessions, &next->sessions);
+        queue_.erase(next);
+      }
+    }
+  }
+  queue_.push_back(std::move(e));
 }
 
 void WatchReactor::FinishLocked(const grpc::Status& status, bool force, bool* call_finish) {
@@ -290,6 +473,7 @@ void WatchReactor::OnCancel() {
 void WatchReactor::OnDone() {
   GrpcTakeOver(this);
   core_->publishers->Remove(this);
+  if (include_contacts_) --scene_->contact_watchers;
   --scene_->observers;
   --core_->observers;
   core_->Unregister(this);

@@ -9,8 +9,11 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <deque>
 #include <map>
+#include <memory>
 #include <mutex>
+#include <set>
 #include <thread>
 #include <vector>
 
@@ -26,8 +29,24 @@ void FillScene(const Scene& scene, const SceneSnapshot& snap, bool include_meshe
 
 class WatchReactor;
 
+/// Telemetry batches a watcher's queue holds (about 2 s at kTelemetryPeriod);
+/// a watcher that falls further behind loses whole oldest batches.
+inline constexpr std::size_t kTelemetryQueueBatches = 40;
+/// How often the hub drains its sessions' telemetry feeds into a batch.
+inline constexpr std::chrono::milliseconds kTelemetryPeriod{50};
+
+/// What the hub queues for one observer, in order: SessionsChanged
+/// (include_contacts; never dropped, consecutive ones merged) and Telemetry
+/// batches (include_telemetry; shared by every observer of the scene,
+/// dropped oldest first when the queue is full).
+struct HubEvent {
+  std::shared_ptr<const v1::Telemetry> batch;  ///< set: a telemetry batch
+  v1::SessionsChanged sessions;                ///< else: a sessions change
+};
+
 /// The publisher of one scene: a thread that wakes on the scene's changes
-/// and on its observers' pose-frame deadlines.
+/// and on its observers' pose-frame deadlines, and every kTelemetryPeriod
+/// drains its device sessions' telemetry feeds.
 class ObserverHub {
  public:
   explicit ObserverHub(ScenePtr scene);
@@ -39,12 +58,35 @@ class ObserverHub {
   bool Idle();
 
  private:
+  /// A device session as this hub shows it. An ended session stays
+  /// (retired) until its last telemetry has gone out in a batch; only then
+  /// is it announced removed.
+  struct HubSession {
+    std::shared_ptr<ProbeSlot> slot;
+    bool retired = false;
+    std::shared_ptr<const v1::SessionInfo> with_mesh;  ///< built on first need
+  };
   void Loop();
+  /// Under mu_: follows the scene's sessions, announces new ones and the
+  /// whole list to observers that have not had it yet.
+  void SyncSessions();
+  /// Under mu_: drains every session's feed into one batch for the
+  /// telemetry observers (or discards it), then announces retired sessions
+  /// removed.
+  void PublishTelemetry(std::int64_t now_ns);
+  void FillInfo(HubSession& s, bool with_mesh, v1::SessionInfo* out);
+  void Announce(const std::vector<std::size_t>& added, const std::vector<std::string>& removed,
+                WatchReactor* only);
+
   ScenePtr scene_;
   std::mutex mu_;
   std::vector<WatchReactor*> observers_;
   std::atomic<bool> stop_{false};
   std::thread thread_;
+  // The hub thread's own.
+  std::vector<HubSession> sessions_;
+  std::uint64_t probes_seen_ = 0;
+  std::vector<std::shared_ptr<ProbeSlot>> scratch_;
 };
 
 /// The per-scene publishers of a server: a scene's hub starts with its first
@@ -76,6 +118,15 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SceneEvent>, publ
   /// in flight. Returns when the next pose frame is due.
   std::chrono::steady_clock::time_point Tick(std::chrono::steady_clock::time_point now);
 
+  bool wants_contacts() const { return include_contacts_; }
+  bool wants_telemetry() const { return include_telemetry_; }
+  bool wants_meshes() const { return include_meshes_; }
+  /// Called by the hub: queues a sessions change or a telemetry batch
+  /// (bounded: see HubEvent).
+  void Enqueue(HubEvent e);
+  /// The hub's own flag: the whole session list has been queued.
+  bool sessions_listed = false;
+
   void Stop(const grpc::Status& status) override;
   const Scene* scene() const override { return scene_.get(); }
   const ScenePtr& scene_ptr() const { return scene_; }
@@ -94,7 +145,13 @@ class WatchReactor final : public grpc::ServerWriteReactor<v1::SceneEvent>, publ
   std::chrono::steady_clock::time_point write_started_{};  ///< of the write in flight
   bool stalled_ = false;  ///< cancelled for a write stuck over the idle timeout
   const bool include_meshes_;
+  const bool include_contacts_;
+  const bool include_telemetry_;
   std::mutex mu_;
+  std::deque<HubEvent> queue_;
+  std::uint64_t batches_dropped_ = 0;
+  bool last_was_pose_ = false;
+  std::set<std::string> announced_;  ///< sessions this observer was told of
   bool in_flight_ = false;
   bool finish_called_ = false;
   bool finish_wanted_ = false;

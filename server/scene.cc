@@ -175,13 +175,27 @@ void Scene::set_next_body_number(std::uint64_t n) {
 }
 
 void Scene::AddProbe(std::shared_ptr<ProbeSlot> slot) {
-  std::lock_guard lock(probes_mu_);
-  probes_.push_back(std::move(slot));
+  {
+    std::lock_guard lock(probes_mu_);
+    probes_.push_back(std::move(slot));
+    ++probes_revision_;
+  }
+  changes_.Notify();
 }
 
 void Scene::RemoveProbe(const ProbeSlot* slot) {
+  {
+    std::lock_guard lock(probes_mu_);
+    std::erase_if(probes_, [&](const auto& p) { return p.get() == slot; });
+    ++probes_revision_;
+  }
+  changes_.Notify();
+}
+
+void Scene::CopySessions(std::vector<std::shared_ptr<ProbeSlot>>* out) const {
+  out->clear();
   std::lock_guard lock(probes_mu_);
-  std::erase_if(probes_, [&](const auto& p) { return p.get() == slot; });
+  *out = probes_;
 }
 
 void Scene::CopyProbes(std::vector<ProbeCopy>* out) const {
@@ -190,7 +204,7 @@ void Scene::CopyProbes(std::vector<ProbeCopy>* out) const {
   for (const auto& p : probes_) {
     std::lock_guard plock(p->mu);
     if (!p->valid) continue;
-    out->push_back({p->session_id, p->X_WA, p->force_W, p->depth, p->sequence});
+    out->push_back({p->session_id, p->X_WA, p->force_W, p->depth, p->sequence, p->full});
   }
 }
 

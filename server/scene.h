@@ -20,9 +20,11 @@
 #include <vector>
 
 #include "hapticpd/v1/haptic.pb.h"
+#include "hapticpd/v1/scene.pb.h"
 #include "pd/geometry_model.h"
 #include "pd/material.h"
 #include "pd/types.h"
+#include "server/telemetry.h"
 
 namespace hapticpd::server {
 
@@ -77,15 +79,26 @@ class ChangeSignal {
   std::atomic<std::uint64_t> count_{0};
 };
 
-/// The latest answered probe pose of a device session, shown to observers.
+/// A device session as observers see it: the latest answered probe pose
+/// (under mu), what draws the session, and its telemetry feed.
 struct ProbeSlot {
   std::string session_id;
+  /// Set before the slot is added to its scene, then never changed: the
+  /// session as SessionsChanged shows it (without the mesh) and its probe.
+  v1::SessionInfo info;
+  pd::ModelPtr probe;
+  /// Telemetry for observers with include_telemetry (server/telemetry.h).
+  TelemetryFeed feed;
   std::mutex mu;
   bool valid = false;
   Pose X_WA;
   Vec3 force_W = Vec3::Zero();
   double depth = 0;
   std::uint64_t sequence = 0;
+  /// The latest answer in full (ProbeState with its contact rows), published
+  /// only while an observer with include_contacts watches the scene
+  /// (Scene::contact_watchers); null before.
+  std::shared_ptr<const v1::ProbeState> full;
 };
 
 class Scene {
@@ -146,9 +159,18 @@ class Scene {
 
   std::atomic<int> sessions{0};
   std::atomic<int> observers{0};
+  /// Observers with include_contacts: while there is one, sessions publish
+  /// their full answers (ProbeSlot::full).
+  std::atomic<int> contact_watchers{0};
 
+  /// A device session joins or leaves the scene's probes (wakes the
+  /// scene's observers: SessionsChanged).
   void AddProbe(std::shared_ptr<ProbeSlot> slot);
   void RemoveProbe(const ProbeSlot* slot);
+  /// Bumps when a probe is added or removed.
+  std::uint64_t probes_revision() const { return probes_revision_.load(); }
+  /// The device sessions' slots, in the order they joined.
+  void CopySessions(std::vector<std::shared_ptr<ProbeSlot>>* out) const;
   /// Copies of the probes' latest states.
   struct ProbeCopy {
     std::string session_id;
@@ -156,6 +178,7 @@ class Scene {
     Vec3 force_W;
     double depth;
     std::uint64_t sequence;
+    std::shared_ptr<const v1::ProbeState> full;  ///< ProbeSlot::full
   };
   void CopyProbes(std::vector<ProbeCopy>* out) const;
 
@@ -172,6 +195,7 @@ class Scene {
   std::atomic<bool> deleted_{false};
   mutable std::mutex probes_mu_;
   std::vector<std::shared_ptr<ProbeSlot>> probes_;
+  std::atomic<std::uint64_t> probes_revision_{0};
   mutable std::mutex config_mu_;
   v1::SceneConfig config_;
 };

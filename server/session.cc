@@ -33,7 +33,9 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       : core_(core),
         ctx_(ctx),
         session_id_(fmt::format("s{}", NextSessionNumber())),
-        worker_pd_(core->limits, session_id_) {
+        worker_pd_(core->limits, session_id_),
+        probe_slot_(std::make_shared<ProbeSlot>()) {
+    probe_slot_->session_id = session_id_;
     core_->Register(this);
     if (auto s = core_->Gate(); !s.ok()) {
       Stop(s);
@@ -83,6 +85,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     }
     const std::int64_t rx = NowNs();
     grpc::Status bad;
+    bool telemetry = false;
     {
       std::lock_guard lock(mb_mu_);
       last_rx_ns_ = rx;
@@ -117,8 +120,24 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
             }
           }
         }
+      } else if (req_.has_telemetry()) {
+        if (!hello_received_) {
+          bad = grpc::Status(grpc::StatusCode::FAILED_PRECONDITION,
+                             "telemetry: the first message must be a hello");
+        } else {
+          telemetry = true;
+        }
       } else {
-        bad = InvalidArgument("msg", "empty CoupleRequest (neither hello nor pose)");
+        bad = InvalidArgument("msg", "empty CoupleRequest (neither hello, pose nor telemetry)");
+      }
+    }
+    // Telemetry is checked and handed to the observers' feed outside the
+    // mailbox's lock (the worker takes poses under it).
+    if (telemetry) {
+      bad = CheckDeviceTelemetry(req_.telemetry(), last_telemetry_seq_);
+      if (bad.ok()) {
+        last_telemetry_seq_ = req_.telemetry().sequence();
+        probe_slot_->feed.AddDevice(req_.mutable_telemetry());
       }
     }
     if (!bad.ok()) {
@@ -347,8 +366,13 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     scene_ = scene;
     scene_ptr_.store(scene.get());
     ++scene_->sessions;
-    probe_slot_ = std::make_shared<ProbeSlot>();
-    probe_slot_->session_id = session_id_;
+    v1::SessionInfo& info = probe_slot_->info;
+    info.set_session_id(session_id_);
+    info.set_client_name(wire::Printable(h.client_name()));
+    info.set_mode(msg.welcome().mode());
+    *info.mutable_probe_mesh_info() = msg.welcome().probe_mesh_info();
+    if (h.probe_case() == v1::Hello::kProbeBodyId) info.set_probe_body_id(h.probe_body_id());
+    probe_slot_->probe = worker_pd_.probe();
     scene_->AddProbe(probe_slot_);
     if (scene_->deleted()) {
       return grpc::Status(grpc::StatusCode::NOT_FOUND, "scene '" + scene_->id() + "' was deleted");
@@ -380,17 +404,40 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
             session_id_, info.withheld);
       }
     }
-    PublishProbe(p, info.force_W, info.depth);
+    PublishProbe(p, info.force_W, info.depth, msg->update());
   }
 
-  /// Shows the answered probe pose to observers (a short lock, after PD).
-  void PublishProbe(const MailPose& p, const Vec3& force_W, double depth) {
+  /// Shows the answered probe pose to observers (a short lock, after PD),
+  /// the answer in full while an observer asks for contacts, and the
+  /// answer's wrench to the telemetry feed (wait-free).
+  void PublishProbe(const MailPose& p, const Vec3& force_W, double depth,
+                    const v1::ContactUpdate& u) {
+    const auto norm = [](const v1::Vec3& v) {
+      return std::sqrt(v.x() * v.x() + v.y() * v.y() + v.z() * v.z());
+    };
+    probe_slot_->feed.AddAnswer(NowNs(), norm(u.force()), norm(u.torque()));
+    std::shared_ptr<v1::ProbeState> full;
+    if (scene_->contact_watchers.load(std::memory_order_relaxed) > 0) {
+      full = std::make_shared<v1::ProbeState>();
+      full->set_session_id(session_id_);
+      *full->mutable_pose() = u.pose_ref();
+      *full->mutable_force() = u.force();
+      full->set_depth(u.depth());
+      full->set_sequence(p.sequence);
+      *full->mutable_torque() = u.torque();
+      full->set_status(u.status());
+      *full->mutable_rows() = u.rows();
+      *full->mutable_body_ids() = u.body_ids();
+      *full->mutable_target_pose() = u.target_pose();
+      full->set_mode(static_cast<v1::PdMode>(worker_pd_.mode()));
+    }
     std::lock_guard lock(probe_slot_->mu);
     probe_slot_->valid = true;
     probe_slot_->X_WA = p.X_WA;
     probe_slot_->force_W = force_W;
     probe_slot_->depth = depth;
     probe_slot_->sequence = p.sequence;
+    probe_slot_->full = std::move(full);
   }
 
   grpc::Status Serve() {
@@ -463,6 +510,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   bool done_ = false;                  ///< OnDone has run
   std::uint64_t last_seq_ = 0;
   std::uint64_t stale_poses_ = 0;
+  std::uint64_t last_telemetry_seq_ = 0;  ///< the reader's own (reads never overlap)
 
   // Writer (wr_mu_).
   std::mutex wr_mu_;

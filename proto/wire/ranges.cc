@@ -36,7 +36,12 @@ std::vector<NamedRange> AllRanges() {
           {"kProbeMass", kProbeMass},
           {"kProbeInertia", kProbeInertia},
           {"kMaxRateHz", kMaxRateHz},
-          {"kWatchRateHz", kWatchRateHz}};
+          {"kWatchRateHz", kWatchRateHz},
+          {"kTelemetryRateHz", kTelemetryRateHz},
+          {"kTelemetryMs", kTelemetryMs},
+          {"kLossFraction", kLossFraction},
+          {"kTelemetryForce", kTelemetryForce},
+          {"kTelemetryTorque", kTelemetryTorque}};
 }
 
 std::string RangeProblem(double v, const Range& r) {

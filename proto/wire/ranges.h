@@ -44,6 +44,14 @@ inline constexpr Range kProbeInertia{1e-12, 1e3, "kg m^2", true};
 // Rates.
 inline constexpr Range kMaxRateHz{0, 1e5, "Hz"};    ///< Hello.max_rate_hz; 0 = unlimited
 inline constexpr Range kWatchRateHz{0, 1e3, "Hz"};  ///< WatchRequest.rate_hz; 0 = 60
+// Device telemetry (CoupleRequest.telemetry): what the device reports.
+inline constexpr Range kTelemetryRateHz{0, 1e6, "Hz"};   ///< servo, update and local model rates
+inline constexpr Range kTelemetryMs{0, 1e9, "ms"};       ///< round trip, IR age, emulated delay
+inline constexpr Range kLossFraction{0, 1, ""};          ///< emulated loss
+inline constexpr Range kTelemetryForce{0, 1e6, "N"};     ///< a commanded force magnitude
+inline constexpr Range kTelemetryTorque{0, 1e6, "N m"};  ///< a commanded torque magnitude
+/// Most commanded samples one DeviceTelemetry may carry (4 s at 1 kHz).
+inline constexpr int kMaxTelemetrySamples = 4096;
 
 /// A range with the name of its constant, for documentation tables.
 struct NamedRange {
