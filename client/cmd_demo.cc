@@ -5,6 +5,7 @@
 // PDt then in PDg. Prints a short report and writes trace.csv and force.svg.
 // `--scene FILE.json` runs a scene file instead (server/scene_file.h): its
 // bodies, probe, PD mode (PDt then PDg when it names none) and effects.
+#include <signal.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -24,6 +25,7 @@
 #include "client/bench/svg.h"
 #include "client/commands.h"
 #include "client/session.h"
+#include "client/view_options.h"
 #include "device/replay_device.h"
 #include "device/servo_loop.h"
 #include "device/simulated_device.h"
@@ -47,6 +49,8 @@ struct DemoOptions {
   double travel = 0.01;          // with --scene: m the hand goes down from the start
   client::LinkOptions link;      // --delay, --jitter, --loss
   std::string local_model = "on";
+  bool view = false;   // --view: the scene in a browser, served until interrupted
+  ViewerFlags viewer;  // --listen, --viewer-token, --tls-cert, --tls-key, --rate
 };
 
 Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
@@ -277,6 +281,14 @@ void RunDemo(const DemoOptions& o) {
     }
   }
 
+  // With --view, SIGINT and SIGTERM end the demo after the run: blocked in
+  // every thread started from here on, taken by sigwait below.
+  sigset_t stop_signals;
+  sigemptyset(&stop_signals);
+  sigaddset(&stop_signals, SIGINT);
+  sigaddset(&stop_signals, SIGTERM);
+  if (o.view) pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+
   const auto level = spdlog::get_level();
   spdlog::set_level(spdlog::level::warn);  // the in-process server's info lines
   server::ServerOptions so = server::ServerOptions::InProcess();
@@ -356,6 +368,20 @@ void RunDemo(const DemoOptions& o) {
   });
 
   std::printf("hapticpd demo: server on 127.0.0.1:%d, %s\n", port, scene_line);
+  std::unique_ptr<viewer::Viewer> view;
+  if (o.view) {
+    ConnectionOptions conn;
+    conn.server = "127.0.0.1:" + std::to_string(port);
+    try {
+      view = std::make_unique<viewer::Viewer>(ViewerOptionsFor(conn, base.scene_id, o.viewer));
+      view->Start();
+    } catch (const viewer::ViewerError& e) {
+      server.Shutdown();
+      spdlog::set_level(level);
+      throw CommandError(std::string("demo: --view: ") + e.what());
+    }
+    std::printf("  viewer: %s\n", view->url().c_str());
+  }
   if (base.link) {
     std::printf("  emulated link: %s\n", client::LinkDescription(*base.link).c_str());
   }
@@ -369,8 +395,10 @@ void RunDemo(const DemoOptions& o) {
   }
   watch_ctx.TryCancel();
   watcher.join();
-  server.Shutdown();
-  spdlog::set_level(level);
+  if (!view) {
+    server.Shutdown();
+    spdlog::set_level(level);
+  }
 
   std::printf("\n%-5s %10s %9s %9s %6s %9s %9s %9s %9s %9s %9s %9s\n", "mode", "loop Hz", "p99 us",
               "jitter", "late", "updates", "contact", "rtt p50", "rtt p99", "PD p50", "peak F",
@@ -398,6 +426,15 @@ void RunDemo(const DemoOptions& o) {
   WriteCsv(out / "trace.csv", runs);
   WriteSvg(out / "force.svg", runs);
   std::printf("wrote %s and %s\n", (out / "trace.csv").c_str(), (out / "force.svg").c_str());
+  if (view) {
+    std::printf("the run is over; the viewer keeps serving %s until Ctrl-C\n", view->url().c_str());
+    std::fflush(stdout);
+    int sig = 0;
+    sigwait(&stop_signals, &sig);
+    view->Stop();
+    server.Shutdown();
+    spdlog::set_level(level);
+  }
   for (const Run& r : runs) {
     if (r.mode != "none" && r.net.contact_updates == 0) {
       throw CommandError("demo: the " + r.mode + " run never touched the " +
@@ -428,6 +465,10 @@ void RegisterDemo(CLI::App& app) {
                   "on: PD on geometry patches on the device side at the proxy's newest pose; "
                   "off: the server's answers only")
       ->capture_default_str();
+  cmd->add_flag("--view", o->view,
+                "Serve the scene to a browser (hapticpd view) during the run and after it, "
+                "until Ctrl-C");
+  AddViewerFlags(cmd, &o->viewer);
   cmd->callback([o] { RunDemo(*o); });
 }
 

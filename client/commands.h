@@ -20,6 +20,9 @@ void RegisterBench(CLI::App& app);   // bench table1|accuracy|peers
 /// observe: a scene's Watch stream, one summary line a second (or JSON).
 void RegisterObserve(CLI::App& app);
 
+/// view: a scene in a browser (client/viewer/README.md).
+void RegisterView(CLI::App& app);
+
 /// --delay, --jitter, --loss (the emulated wide-area link of `device` and
 /// `demo`) into `link`; checked by client::LinkOptionsProblem when run.
 void AddLinkOptions(CLI::App* cmd, client::LinkOptions* link);

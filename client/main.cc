@@ -24,6 +24,7 @@ int main(int argc, char** argv) {
   hapticpd::cli::RegisterDemo(app);
   hapticpd::cli::RegisterBench(app);
   hapticpd::cli::RegisterObserve(app);
+  hapticpd::cli::RegisterView(app);
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
   try {
     app.parse(argc, argv);
