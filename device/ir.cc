@@ -97,6 +97,7 @@ void IrEvaluator::Reset() {
   fade_ = 0;
   shift_ = 0;
   ramp_recovery_ = true;
+  unvisited_ = false;
 }
 
 void IrEvaluator::Accept(const IntermediateRep& ir, const Pose& X_WP) {
@@ -115,8 +116,9 @@ void IrEvaluator::Accept(const IntermediateRep& ir, const Pose& X_WP) {
     if (blend_tick_ < n) W_old += (1.0 - static_cast<double>(blend_tick_) / n) * offset_;
   }
   ir_ = ir;
-  Vec6 W_new;
-  EvaluateIrShifted(ir_, X_WP, shift_, &W_new, &K, nullptr);
+  unvisited_ = !InsideValidity(ir_, X_WP);
+  Vec6 W_new = Vec6::Zero();
+  if (!unvisited_) EvaluateIrShifted(ir_, X_WP, shift_, &W_new, &K, nullptr);
   // First IR: nothing to blend from (the fade-in ramps it).
   offset_ = has_ir_ ? Vec6(W_old - W_new) : Vec6::Zero();
   // Two answers that agree leave round-off (1e-17 N), which would let a
@@ -141,6 +143,7 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
   info->age_s = 1e-9 * static_cast<double>(now_ns - ir_.receive_time_ns);
   info->stale = info->age_s > params_.max_age_s;
   info->outside_validity = !InsideValidity(ir_, X_WP);
+  if (!info->outside_validity) unvisited_ = false;
   const double target = (info->stale || info->outside_validity) ? 0.0 : 1.0;
   if (target == 0) ramp_recovery_ = info->stale;
   const double down = params_.fade_time_s > 0 ? dt_s / params_.fade_time_s : 1.0;
@@ -149,10 +152,15 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
   fade_ = target > fade_ ? std::min(target, fade_ + up) : std::max(target, fade_ - down);
 
   IrPotential pot;
-  EvaluateIrShifted(ir_, X_WP, shift_, W, K, &pot);
+  if (unvisited_) {
+    W->setZero();
+    K->setZero();
+  } else {
+    EvaluateIrShifted(ir_, X_WP, shift_, W, K, &pot);
+  }
   info->active_rows = pot.touching_rows;
   if (ir_.num_rows > 0 || ir_.use_target) info->max_depth = pot.max_depth;
-  if (params_.energy_neutral_reentry) {
+  if (params_.energy_neutral_reentry && !unvisited_) {
     // Energy-neutral re-entry. Scaling the contact wrench by a gain g(t)
     // puts g'(t) U(x) into the loop at a fixed pose (U: the rows' potential):
     // a fade-out dissipates, but a fade-in with the proxy sunk deep (it fell

@@ -132,7 +132,12 @@ struct IrEvalInfo {
 /// arrive faster than the blend. Fading: a gain that moves towards 0 (stale
 /// or outside validity) at 1/fade_time per second, or towards 1 at
 /// 1/fade_in_time; back inside the validity region the rise is made
-/// energy-neutral (IrEvalParams::energy_neutral_reentry). Not thread-safe:
+/// energy-neutral (IrEvalParams::energy_neutral_reentry). An IR that arrives
+/// for a pose whose validity region the proxy is already outside of (a late
+/// answer under delay) never pushes until the proxy has been inside it: its
+/// rows, linearised centimetres away, say nothing about where the proxy is,
+/// and fading them out would push with them for the fade's 20 ms (the blend
+/// takes the old IR's wrench to zero instead). Not thread-safe:
 /// owned by the servo thread. No allocation after construction.
 class IrEvaluator {
  public:
@@ -159,6 +164,9 @@ class IrEvaluator {
   int blend_tick_ = 0;
   double fade_ = 0;
   double shift_ = 0;  // m, see IrEvalParams::energy_neutral_reentry
+  // The IR arrived with the proxy outside its validity region, and the proxy
+  // has not been inside it since: its rows do not push.
+  bool unvisited_ = false;
   // The last fade-down was for a stale IR (or there was no IR yet): the
   // next rise is the plain recovery ramp.
   bool ramp_recovery_ = true;

@@ -570,7 +570,13 @@ bool LocalContactModel::Step(std::int64_t now_ns, IrMailbox* out) {
       ++stats_.local_answers;
     }
   } else {
-    if (have_server_ && !server_ir_published_) {
+    // Rule 3. Under a patch the probe has outrun, a late answer for a pose
+    // the probe has left would replace the last local IR (still good near
+    // where the patch ended) with rows linearised far away: it waits until
+    // the probe is inside its validity region, or a newer answer comes.
+    const bool usable =
+        view_now_ == nullptr || !have_sample_ || InsideValidity(server_ir_, sample_.X_WP);
+    if (have_server_ && !server_ir_published_ && usable) {
       out->Write(server_ir_);
       server_ir_published_ = true;
       published = true;

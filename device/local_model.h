@@ -22,7 +22,10 @@
 //      outran it, a rejected patch, the stream quiet for longer than
 //      `patch_quiet_s`, or broken), the server's answers are rendered as they
 //      arrive, exactly as without a local model; with neither, the IR goes
-//      stale and the servo loop fades the contact out.
+//      stale and the servo loop fades the contact out. Under a patch the
+//      probe has outrun, an answer is held back while the probe is outside
+//      its validity region (it is for a pose the probe has left): the last
+//      local IR stays, and fades as the probe leaves its validity.
 // The server's answer seeds the local query: a body's query state starts
 // afresh whenever its patch model is rebuilt, and then starts from the
 // server's newest answer (its deepest row as a remembered contact, PDt's

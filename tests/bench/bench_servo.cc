@@ -6,11 +6,16 @@
 // client::Session in PDt mode with the stick probe feeding the loop's
 // mailboxes, exactly as `hapticpd device` and `hapticpd demo` do. With
 // --local a LocalPdIrSource worker thread computes PDt in-process instead
-// (no gRPC, no network), for comparison. Reports tick compute time (goal
+// (no gRPC, no network), for comparison. With --patches the session runs
+// the local contact model (device/local_model.h), as `hapticpd device` does
+// by default: the server streams geometry patches and the model's worker
+// thread answers on them; --delay MS puts an emulated one-way delay (+-20 %
+// jitter) between the loop and the server. Reports tick compute time (goal
 // p99 <= 20 us) and period jitter (goal p99 period error <= 100 us, < 0.1%
 // late ticks), and the IR path's round trip, PD time, rate and IR age.
 //
-//   bench_servo [--seconds S] [--script hold|press|slide|twist|circle|loop|plate] [--local]
+//   bench_servo [--seconds S] [--script hold|press|slide|twist|circle|loop|plate]
+//               [--local | --patches [--delay MS]]
 #include <grpcpp/grpcpp.h>
 #include <spdlog/spdlog.h>
 
@@ -46,13 +51,15 @@ struct Args {
   double seconds = 10;
   std::string script = "loop";
   bool local = false;
+  bool patches = false;
+  double delay_ms = 0;
 };
 
 /// One line on stderr naming the problem; exit status 2.
 [[noreturn]] void Usage(const std::string& problem) {
   std::fprintf(stderr,
                "bench_servo: %s (usage: bench_servo [--seconds S] [--script "
-               "hold|press|slide|twist|circle|loop|plate] [--local])\n",
+               "hold|press|slide|twist|circle|loop|plate] [--local | --patches [--delay MS]])\n",
                problem.c_str());
   std::exit(2);
 }
@@ -63,7 +70,9 @@ Args ParseArgs(int argc, char** argv) {
     const std::string arg = argv[i];
     if (arg == "--local") {
       a.local = true;
-    } else if (arg == "--seconds" || arg == "--script") {
+    } else if (arg == "--patches") {
+      a.patches = true;
+    } else if (arg == "--seconds" || arg == "--script" || arg == "--delay") {
       if (i + 1 >= argc) Usage(arg + ": missing value");
       const std::string v = argv[++i];
       if (arg == "--script") {
@@ -71,7 +80,15 @@ Args ParseArgs(int argc, char** argv) {
         continue;
       }
       char* end = nullptr;
-      a.seconds = std::strtod(v.c_str(), &end);
+      const double x = std::strtod(v.c_str(), &end);
+      if (arg == "--delay") {
+        if (v.empty() || *end != '\0' || !std::isfinite(x) || x < 0 || x > 10000) {
+          Usage("--delay: expected a one-way delay of 0 to 10000 ms, got '" + v + "'");
+        }
+        a.delay_ms = x;
+        continue;
+      }
+      a.seconds = x;
       if (v.empty() || *end != '\0' || !std::isfinite(a.seconds) || !(a.seconds > 0)) {
         Usage("--seconds: expected a number of seconds > 0, got '" + v + "'");
       }
@@ -222,6 +239,13 @@ int RunServer(const Args& a, HandScript script) {
   opt.hello.set_probe_shape("stick");
   opt.hello.set_client_name("bench_servo");
   opt.connect_timeout_s = 10;
+  opt.local_model = a.patches;
+  if (a.delay_ms > 0) {
+    client::LinkOptions link;
+    link.delay_ms = a.delay_ms;
+    link.jitter_ms = 0.2 * a.delay_ms;
+    opt.link = link;
+  }
   client::Session session(opt);
   session.Connect();
   const v1::Welcome& welcome = session.welcome();
@@ -255,10 +279,11 @@ int RunServer(const Args& a, HandScript script) {
 
   const ServoStats& s = loop.stats();
   std::printf(
-      "bench_servo: %.1f s, mode server (hapticpd server in-process on 127.0.0.1:%d, "
-      "client::Session PDt, probe stick, knot %u triangles), script %s, SCHED_FIFO %s\n",
-      a.seconds, port, knot.mesh_info().triangles(), a.script.c_str(),
-      loop.got_realtime_priority() ? "yes" : "no (not permitted)");
+      "bench_servo: %.1f s, mode server%s (hapticpd server in-process on 127.0.0.1:%d, "
+      "client::Session PDt, probe stick, knot %u triangles, one-way delay %.0f ms), script %s, "
+      "SCHED_FIFO %s\n",
+      a.seconds, a.patches ? " + local contact model" : "", port, knot.mesh_info().triangles(),
+      a.delay_ms, a.script.c_str(), loop.got_realtime_priority() ? "yes" : "no (not permitted)");
   PrintLoop(s);
   std::printf(
       "session: %llu poses sent, %llu updates (%.0f/s, %llu in contact, %llu rejected), "
@@ -292,6 +317,9 @@ int main(int argc, char** argv) {
     script = ParseHandScript(a.script);
   } catch (const std::invalid_argument& e) {
     Usage(std::string("--script: ") + e.what());
+  }
+  if (a.local && (a.patches || a.delay_ms > 0)) {
+    Usage("--local runs without a server: --patches and --delay need the server mode");
   }
   if (a.local) return RunLocal(a, script);
   try {

@@ -160,6 +160,48 @@ TEST(IrEval, LeavingTheValidityRegionFades) {
   EXPECT_TRUE(InsideValidity(ir, ir.X_WP_ref));
 }
 
+// A late answer under delay: an IR for a pose the proxy has already left
+// (outside its validity region when it arrives). Its row, evaluated by its
+// linearisation 2 cm away, would push with 5 N; it must not push at all
+// (the blend takes the old IR's wrench to zero) until the proxy has been
+// inside its validity region, and then it renders as any IR does.
+TEST(IrEval, AnIrArrivingOutsideItsValidityNeverPushesThere) {
+  IrEvalParams p;
+  p.fade_in_time_s = 0.020;
+  IrEvaluator ev(p);
+  Vec6 W;
+  Mat6 K;
+  IrEvalInfo info;
+  // The old IR: a shallow contact where the proxy is (1 N).
+  const Pose here = Pose::FromTranslation(Vec3(0.02, 0, 0.1));
+  IntermediateRep old_ir = FloorIr(0.001, 1000, 0);
+  old_ir.X_WP_ref = here;
+  ev.Accept(old_ir, here);
+  for (int i = 1; i <= 30; ++i) ev.Evaluate(here, 0, 1e-3, &W, &K, &info);
+  ASSERT_NEAR(W(2), 1.0, 1e-9);
+  // The late IR: 2 cm away (1 cm validity radius), 5 mm deep.
+  const IntermediateRep late = FloorIr(0.005, 1000, 0);
+  ev.Accept(late, here);
+  double last = W.norm();
+  for (int i = 1; i <= 30; ++i) {
+    ev.Evaluate(here, 0, 1e-3, &W, &K, &info);
+    EXPECT_LE(W.norm(), last + 1e-12) << "tick " << i << " after the late IR";
+    EXPECT_EQ(info.active_rows, 0);
+    last = W.norm();
+  }
+  EXPECT_EQ(W.norm(), 0.0);
+  EXPECT_EQ(K.norm(), 0.0);
+  // Inside its validity region, 1 mm above its surface, then pressed 1 mm in.
+  const Pose above = Pose::FromTranslation(late.X_WP_ref.t + Vec3(0, 0, 0.006));
+  for (int i = 1; i <= 60; ++i) ev.Evaluate(above, 0, 1e-3, &W, &K, &info);
+  EXPECT_FALSE(info.outside_validity);
+  EXPECT_EQ(W.norm(), 0.0);
+  const Pose in = Pose::FromTranslation(late.X_WP_ref.t + Vec3(0, 0, 0.004));
+  ev.Evaluate(in, 0, 1e-3, &W, &K, &info);
+  EXPECT_EQ(info.active_rows, 1);
+  EXPECT_NEAR(W(2), 1.0, 1e-9);
+}
+
 // Issue 8: under delay the proxy keeps leaving the validity region, the
 // rows fade out, the proxy sinks, and the rows fade back in with it deep
 // inside, which pushes it (and the hand) out with energy nobody put in. The

@@ -306,6 +306,45 @@ TEST(LocalModel, AnswersLocallyWhereThePatchCoversAndFallsBackWhereItDoesNot) {
   EXPECT_EQ(out.front().source, kIrSourceLocal);
 }
 
+// Under a patch the probe has outrun, a late server answer for a pose the
+// probe has left (outside that answer's validity region) is held back: the
+// last local IR stays, and the servo loop fades it as the probe leaves its
+// validity. An answer valid where the probe is now is rendered.
+TEST(LocalModel, ALateServerAnswerForAPoseTheProbeHasLeftIsHeldBack) {
+  Scene sc;
+  LocalContactModel lm(sc.probe, sc.X_PA(), LocalModelOptions{});
+  IrMailbox out;
+  const Pose X_WA = sc.ProbeAt(0.003);
+  std::int64_t t = 1'000'000'000;
+  lm.OfferPatch(sc.Patch(X_WA, 0.01), t);
+  lm.OfferSample(sc.Sample(X_WA, 1, t));
+  ASSERT_TRUE(lm.Step(t, &out));
+  ASSERT_TRUE(out.Fetch());
+  ASSERT_EQ(out.front().source, kIrSourceLocal);
+  // The probe is 6 cm away, out of the patch; the answer is for X_WA.
+  const Pose far = sc.ProbeAt(0.003, 0.06);
+  IntermediateRep late = sc.ServerAnswer(X_WA, 0.002, 500, t);
+  late.validity_radius = 0.01;
+  t += 1'000'000;
+  late.receive_time_ns = t;
+  lm.OfferServerIr(late);
+  lm.OfferSample(sc.Sample(far, 2, t));
+  EXPECT_FALSE(lm.Step(t, &out));
+  EXPECT_FALSE(out.Fetch());
+  EXPECT_EQ(lm.stats().uncovered, 1u);
+  // An answer for where the probe is now is rendered.
+  IntermediateRep now = sc.ServerAnswer(far, 0.0025, 500, t);
+  now.validity_radius = 0.01;
+  t += 1'000'000;
+  now.receive_time_ns = t;
+  lm.OfferServerIr(now);
+  lm.OfferSample(sc.Sample(far, 3, t));
+  ASSERT_TRUE(lm.Step(t, &out));
+  ASSERT_TRUE(out.Fetch());
+  EXPECT_EQ(out.front().source, kIrSourceServer);
+  EXPECT_EQ(out.front().rows[0].depth, 0.0025);
+}
+
 TEST(LocalModel, ARemovedBodyIsNeverFeltAgain) {
   Scene sc;
   LocalContactModel lm(sc.probe, sc.X_PA(), LocalModelOptions{});
