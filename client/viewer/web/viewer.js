@@ -171,7 +171,10 @@ pointsObj.renderOrder = normalsObj.renderOrder = 2;
 pointsObj.frustumCulled = normalsObj.frustumCulled = false;
 scene.add(pointsObj, normalsObj);
 
-const FORCE_M_PER_N = 0.02, TORQUE_M_PER_NM = 0.5, ARROW_MAX_M = 0.2;
+// Arrow lengths saturate: a fraction of the scene's size, half of it at
+// FORCE_REF_N (TORQUE_REF_NM), so that both a light touch and a hard press show.
+const FORCE_REF_N = 2, TORQUE_REF_NM = 0.02;
+let sceneRadius = 0.2;  // m, set when the scene is framed
 const neutralProbe = new THREE.Color(0x5b8fd6);
 
 class Session {
@@ -193,7 +196,11 @@ class Session {
     this.ghost.visible = false;
     this.forceArrow = new THREE.ArrowHelper(new THREE.Vector3(0, 0, 1), new THREE.Vector3(), 0.01, 0xff5a3c);
     this.torqueArrow = new THREE.ArrowHelper(new THREE.Vector3(0, 0, 1), new THREE.Vector3(), 0.01, 0xc266ff);
-    this.forceArrow.visible = this.torqueArrow.visible = false;
+    for (const a of [this.forceArrow, this.torqueArrow]) {
+      a.visible = false;
+      // Drawn over the bodies: the arrow starts inside the probe, often inside a body.
+      for (const part of [a.line, a.cone]) { part.material.depthTest = false; part.renderOrder = 3; }
+    }
     scene.add(this.obj, this.ghost, this.forceArrow, this.torqueArrow);
     this.obj.visible = false;  // until its first pose
     this.makePanel();
@@ -202,7 +209,8 @@ class Session {
   setInfo(info) {
     this.info = info;
     this.panel.querySelector('.name').textContent =
-      `${this.id}${info.client ? ' — ' + info.client : ''}${info.mode ? ' (' + info.mode + ')' : ''}`;
+      `${this.id}${info.mode ? ' · ' + info.mode : ''}` +
+      `${info.client ? ' — ' + info.client : ''}`;
     const useGeometry = g => { this.body.geometry = g; this.ghostMesh.geometry = g; };
     useGeometry(boxGeometry(info.info));
     if (info.mesh) geometry(info.mesh).then(g => { if (g && this.info === info) useGeometry(g); });
@@ -224,8 +232,8 @@ class Session {
     const com = new THREE.Vector3();
     if (this.info && this.info.info && this.info.info.com) com.fromArray(this.info.info.com);
     com.applyQuaternion(this.obj.quaternion).add(this.obj.position);
-    arrow(this.forceArrow, com, p.force, FORCE_M_PER_N);
-    arrow(this.torqueArrow, com, p.torque || [0, 0, 0], TORQUE_M_PER_NM);
+    arrow(this.forceArrow, com, p.force, FORCE_REF_N);
+    arrow(this.torqueArrow, com, p.torque || [0, 0, 0], TORQUE_REF_NM);
     const f = Math.hypot(...p.force);
     this.plot.addPoseFrame(f, p.torque ? Math.hypot(...p.torque) : null, now);
   }
@@ -250,14 +258,15 @@ class Session {
   }
 }
 
-function arrow(a, origin, v, scale) {
+function arrow(a, origin, v, ref) {
   const len = Math.hypot(v[0], v[1], v[2]);
   if (!(len > 1e-9)) { a.visible = false; return; }
   a.visible = true;
   a.position.copy(origin);
   a.setDirection(new THREE.Vector3(v[0] / len, v[1] / len, v[2] / len));
-  const l = Math.min(ARROW_MAX_M, len * scale);
-  a.setLength(Math.max(l, 0.004), Math.min(0.3 * l, 0.01) + 0.002, Math.min(0.2 * l, 0.006) + 0.001);
+  const l = 0.6 * sceneRadius * (1 - Math.exp(-len * Math.LN2 / ref));
+  a.setLength(Math.max(l, 0.02 * sceneRadius), 0.2 * Math.max(l, 0.05 * sceneRadius),
+              0.08 * Math.max(l, 0.05 * sceneRadius));
 }
 
 function session(id) {
@@ -450,6 +459,7 @@ function frameScene() {
   }
   if (box.isEmpty()) return;
   const c = box.getCenter(new THREE.Vector3()), r = Math.max(0.02, box.getSize(new THREE.Vector3()).length() / 2);
+  sceneRadius = r;
   controls.target.copy(c);
   camera.position.copy(c).add(new THREE.Vector3(1.1, -1.6, 1.0).multiplyScalar(r * 1.4));
   camera.near = r / 100;
