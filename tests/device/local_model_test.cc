@@ -93,6 +93,13 @@ struct Scene {
   }
 };
 
+/// Offers the sample, steps the model at t, and takes what it published:
+/// false when it published nothing.
+bool StepFetch(LocalContactModel* lm, const ProxySample& sample, std::int64_t t, IrMailbox* out) {
+  lm->OfferSample(sample);
+  return lm->Step(t, out) && out->Fetch();
+}
+
 TEST(PatchStore, HoldsWhatWasSentAndCoversTheProbe) {
   Scene sc;
   const Pose X_WA = sc.ProbeAt(0.003);
@@ -267,17 +274,13 @@ TEST(LocalModel, AnswersLocallyWhereThePatchCoversAndFallsBackWhereItDoesNot) {
   // uncovered.
   IntermediateRep server = sc.ServerAnswer(X_WA, 0.002, 500, t);
   lm.OfferServerIr(server);
-  lm.OfferSample(sc.Sample(X_WA, 1, t));
-  ASSERT_TRUE(lm.Step(t, &out));
-  ASSERT_TRUE(out.Fetch());
+  ASSERT_TRUE(StepFetch(&lm, sc.Sample(X_WA, 1, t), t, &out));
   EXPECT_EQ(out.front().source, kIrSourceServer);
   EXPECT_EQ(lm.stats().uncovered, 1u);
   // A patch: the local model answers at the sample's pose, from the box.
   lm.OfferPatch(sc.Patch(X_WA, 0.01), t);
   t += 1'000'000;
-  lm.OfferSample(sc.Sample(X_WA, 2, t));
-  ASSERT_TRUE(lm.Step(t, &out));
-  ASSERT_TRUE(out.Fetch());
+  ASSERT_TRUE(StepFetch(&lm, sc.Sample(X_WA, 2, t), t, &out));
   const IntermediateRep& ir = out.front();
   EXPECT_EQ(ir.source, kIrSourceLocal);
   ASSERT_GE(ir.num_rows, 1);
@@ -292,17 +295,13 @@ TEST(LocalModel, AnswersLocallyWhereThePatchCoversAndFallsBackWhereItDoesNot) {
   server.receive_time_ns = t;
   server.rows[0].depth = 0.0025;
   lm.OfferServerIr(server);
-  lm.OfferSample(sc.Sample(far, 3, t));
-  ASSERT_TRUE(lm.Step(t, &out));
-  ASSERT_TRUE(out.Fetch());
+  ASSERT_TRUE(StepFetch(&lm, sc.Sample(far, 3, t), t, &out));
   EXPECT_EQ(out.front().source, kIrSourceServer);
   EXPECT_EQ(out.front().rows[0].depth, 0.0025);
   EXPECT_EQ(lm.stats().uncovered, 2u);
   // Back in the patch: local again.
   t += 1'000'000;
-  lm.OfferSample(sc.Sample(X_WA, 4, t));
-  ASSERT_TRUE(lm.Step(t, &out));
-  ASSERT_TRUE(out.Fetch());
+  ASSERT_TRUE(StepFetch(&lm, sc.Sample(X_WA, 4, t), t, &out));
   EXPECT_EQ(out.front().source, kIrSourceLocal);
 }
 
@@ -317,9 +316,7 @@ TEST(LocalModel, ALateServerAnswerForAPoseTheProbeHasLeftIsHeldBack) {
   const Pose X_WA = sc.ProbeAt(0.003);
   std::int64_t t = 1'000'000'000;
   lm.OfferPatch(sc.Patch(X_WA, 0.01), t);
-  lm.OfferSample(sc.Sample(X_WA, 1, t));
-  ASSERT_TRUE(lm.Step(t, &out));
-  ASSERT_TRUE(out.Fetch());
+  ASSERT_TRUE(StepFetch(&lm, sc.Sample(X_WA, 1, t), t, &out));
   ASSERT_EQ(out.front().source, kIrSourceLocal);
   // The probe is 6 cm away, out of the patch; the answer is for X_WA.
   const Pose far = sc.ProbeAt(0.003, 0.06);
@@ -338,9 +335,7 @@ TEST(LocalModel, ALateServerAnswerForAPoseTheProbeHasLeftIsHeldBack) {
   t += 1'000'000;
   now.receive_time_ns = t;
   lm.OfferServerIr(now);
-  lm.OfferSample(sc.Sample(far, 3, t));
-  ASSERT_TRUE(lm.Step(t, &out));
-  ASSERT_TRUE(out.Fetch());
+  ASSERT_TRUE(StepFetch(&lm, sc.Sample(far, 3, t), t, &out));
   EXPECT_EQ(out.front().source, kIrSourceServer);
   EXPECT_EQ(out.front().rows[0].depth, 0.0025);
 }
@@ -352,9 +347,7 @@ TEST(LocalModel, ARemovedBodyIsNeverFeltAgain) {
   const Pose X_WA = sc.ProbeAt(0.003);
   std::int64_t t = 1'000'000'000;
   lm.OfferPatch(sc.Patch(X_WA, 0.01), t);
-  lm.OfferSample(sc.Sample(X_WA, 1, t));
-  ASSERT_TRUE(lm.Step(t, &out));
-  ASSERT_TRUE(out.Fetch());
+  ASSERT_TRUE(StepFetch(&lm, sc.Sample(X_WA, 1, t), t, &out));
   ASSERT_GE(out.front().num_rows, 1);
   // The body is removed (a later scene revision): the next patch drops it.
   PatchDelta gone;
@@ -366,9 +359,7 @@ TEST(LocalModel, ARemovedBodyIsNeverFeltAgain) {
   lm.OfferPatch(gone, t);
   for (int i = 2; i < 20; ++i) {
     t += 1'000'000;
-    lm.OfferSample(sc.Sample(X_WA, static_cast<std::uint64_t>(i), t));
-    ASSERT_TRUE(lm.Step(t, &out));
-    ASSERT_TRUE(out.Fetch());
+    ASSERT_TRUE(StepFetch(&lm, sc.Sample(X_WA, static_cast<std::uint64_t>(i), t), t, &out));
     EXPECT_EQ(out.front().source, kIrSourceLocal);
     EXPECT_EQ(out.front().num_rows, 0) << "tick " << i;
   }
@@ -390,14 +381,10 @@ TEST(LocalModel, AMovingBodyIsFeltWhereItIsNow) {
   lm.SetServerClockOffset(-1'000'000'000);       // loop clock 1 s = server clock 0
   std::int64_t t = 1'000'000'000 + 100'000'000;  // server 0.1 s: box 1 mm up, still free
   lm.OfferPatch(d, t);
-  lm.OfferSample(sc.Sample(X_WA, 1, t));
-  ASSERT_TRUE(lm.Step(t, &out));
-  ASSERT_TRUE(out.Fetch());
+  ASSERT_TRUE(StepFetch(&lm, sc.Sample(X_WA, 1, t), t, &out));
   EXPECT_EQ(out.front().num_rows, 0);
   t = 1'000'000'000 + 500'000'000;  // server 0.5 s: 5 mm up, 3 mm into the probe
-  lm.OfferSample(sc.Sample(X_WA, 2, t));
-  ASSERT_TRUE(lm.Step(t, &out));
-  ASSERT_TRUE(out.Fetch());
+  ASSERT_TRUE(StepFetch(&lm, sc.Sample(X_WA, 2, t), t, &out));
   ASSERT_GE(out.front().num_rows, 1);
   EXPECT_NEAR(out.front().rows[0].depth, 0.003, 1e-4);
 }
@@ -420,9 +407,7 @@ TEST(LocalModel, ProbeDeeperThanThePatchCanTellGetsTheServersAnswer) {
   lm.OfferPatch(d, t);
   IntermediateRep server = sc.ServerAnswer(X_WA, 0.3, 1000, t);
   lm.OfferServerIr(server);
-  lm.OfferSample(sc.Sample(X_WA, 1, t));
-  ASSERT_TRUE(lm.Step(t, &out));
-  ASSERT_TRUE(out.Fetch());
+  ASSERT_TRUE(StepFetch(&lm, sc.Sample(X_WA, 1, t), t, &out));
   EXPECT_EQ(out.front().source, kIrSourceServer);
   EXPECT_EQ(out.front().rows[0].depth, 0.3);
   EXPECT_EQ(lm.stats().server_deeper, 1u);
