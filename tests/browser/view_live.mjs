@@ -32,45 +32,62 @@ runTest('view_live', async (ctx) => {
   check(h.server_connected === true && h.scene_id === 'live' && h.browsers >= 1,
         `/healthz ${JSON.stringify(h)}: server_connected, scene_id live, >= 1 browser`);
 
+  // What the page shows, recorded in the page every 10 ms from now on, so
+  // that nothing transient (the contact lasts about a second) is missed
+  // between two polls of this process.
+  await page.evaluate(() => {
+    const r = window.__rec = { probes: 0, sessions: 0, lo: null, hi: null, contacts: 0, rows: 0,
+                               depth: 0, plot: 0 };
+    setInterval(() => {
+      const v = window.hapticpdView;
+      const ps = Object.values(v.probes || {});
+      r.probes = Math.max(r.probes, ps.length);
+      r.sessions = Math.max(r.sessions, __count(v.sessions));
+      for (const p of ps) {
+        if (!Array.isArray(p.position) || p.position.length !== 3 || !p.position.every(Number.isFinite)) continue;
+        r.lo = r.lo ? r.lo.map((x, i) => Math.min(x, p.position[i])) : p.position.slice();
+        r.hi = r.hi ? r.hi.map((x, i) => Math.max(x, p.position[i])) : p.position.slice();
+        r.rows = Math.max(r.rows, __count(p.rows));
+        r.depth = Math.max(r.depth, Number(p.depth) || 0);
+      }
+      r.contacts = Math.max(r.contacts, __count(v.contacts));
+      r.plot = Math.max(r.plot, __count(v.plotSamples));
+    }, 10);
+  });
+
   // The device session: the stick starts above the scene, centred over the
   // block, presses 20 mm down and comes back over 6 s.
   const device = server.device('live', { script: 'press', duration: 6 });
   ctx.procs.push(device);
 
-  const first = await waitView(page, () => {
-    const v = window.hapticpdView;
-    const ids = Object.keys(v.probes || {});
-    return ids.length === 1 && __count(v.sessions) >= 1 && v.probes[ids[0]].position;
-  }, { timeoutMs: 15000, what: "the device session's probe shown" }).then((h) => h.jsonValue());
-  check(first.length === 3 && first.every(Number.isFinite), `probe position ${first} is 3 numbers`);
-
-  await waitView(page, (p0) => {
-    const v = window.hapticpdView;
-    const pr = Object.values(v.probes)[0];
-    if (!pr) return false;
-    const d = Math.hypot(pr.position[0] - p0[0], pr.position[1] - p0[1], pr.position[2] - p0[2]);
-    return d > 0.002;
-  }, { arg: first, what: 'the probe moved more than 2 mm from where it was first shown' });
-
+  await waitView(page, () => window.__rec.probes === 1 && window.__rec.sessions >= 1,
+                 { what: "the device session's probe shown" });
   await waitView(page, () => {
-    const v = window.hapticpdView;
-    const pr = Object.values(v.probes)[0];
-    return __count(v.contacts) > 0 && pr && __count(pr.rows) > 0 && pr.depth > 0;
-  }, { timeoutMs: 15000, what: 'contacts shown while the stick presses into the block' });
-
-  await waitView(page, () => __count(window.hapticpdView.plotSamples) > 100,
-                 { what: 'the force plot holding more than 100 samples' });
-  const frames0 = await page.evaluate(() => window.hapticpdView.framesRendered);
-  await waitView(page, (f0) => window.hapticpdView.framesRendered > f0 + 5,
-                 { arg: frames0, what: 'the page drawing frames' });
-
-  // While still in contact: the picture for the README.
+    const r = window.__rec;
+    return r.lo && Math.hypot(r.hi[0] - r.lo[0], r.hi[1] - r.lo[1], r.hi[2] - r.lo[2]) > 0.002;
+  }, { what: 'the probe shown moving more than 2 mm' });
+  // The picture for the README while the stick is in the block (not fatal if missed).
+  await waitView(page, () => __count(window.hapticpdView.contacts) > 0,
+                 { timeoutMs: 10000, what: 'a contact on screen for the screenshot' })
+    .catch((e) => console.log(`note: ${e.message.split('\n')[0]}`));
   fs.mkdirSync(path.dirname(config.screenshot), { recursive: true });
   await page.screenshot({ path: config.screenshot });
   const png = fs.readFileSync(config.screenshot);
   check(png.length > 10000 && png.readUInt32BE(16) === 1280 && png.readUInt32BE(20) === 800,
         `screenshot ${config.screenshot} is a 1280x800 PNG (${png.length} bytes)`);
   console.log(`screenshot: ${config.screenshot}`);
+
+  // While pressing: contacts (rows, depth) shown, and the plot has data.
+  await waitView(page, () => {
+    const r = window.__rec;
+    return r.contacts > 0 && r.rows > 0 && r.depth > 0;
+  }, { timeoutMs: 15000, what: 'contacts shown while the stick pressed into the block (recorded maxima)' });
+  await waitView(page, () => window.__rec.plot > 100,
+                 { what: 'the force plot holding more than 100 samples' });
+  const frames0 = await page.evaluate(() => window.hapticpdView.framesRendered);
+  await waitView(page, (f0) => window.hapticpdView.framesRendered > f0 + 5,
+                 { arg: frames0, what: 'the page drawing frames' });
+  console.log(`recorded: ${JSON.stringify(await page.evaluate(() => window.__rec))}`);
 
   const { code, json } = await device.result;
   check(code === 0 && json, `the device session ended cleanly (exit ${code})`);
