@@ -2,14 +2,19 @@
 // (bodies, the device sessions' probes: pose, contacts, force), and with
 // --json one object at the end (frames received, their rate, the last
 // summary). `hapticpd watch` prints every event instead.
+#include <fmt/format.h>
+
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <set>
 #include <string>
+#include <string_view>
 
 #include "client/rpc_util.h"
 #include "hapticpd/v1/scene.grpc.pb.h"
@@ -23,6 +28,25 @@ struct ObserveOptions {
   double duration = 0;  // 0: until the stream ends
   double rate = 60;
   bool json = false;
+  bool telemetry = false;  // Watch include_telemetry: a line per device session
+};
+
+/// "FAIL_SAFE_STATE_OK" -> "ok" (an enum value's name without its prefix).
+std::string Short(const std::string& name, std::string_view prefix) {
+  std::string s = name.rfind(prefix, 0) == 0 ? name.substr(prefix.size()) : name;
+  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return s;
+}
+
+/// A device session's relayed telemetry since the previous line.
+struct SessionLine {
+  v1::DeviceTelemetry device;  // the latest
+  bool have_device = false;
+  bool fresh = false;           // telemetry came since the previous line
+  double max_force = 0;         // N, commanded on the hand
+  double max_server_force = 0;  // N, the server's penalty force
+  double update_rate_hz = 0;    // as the server counts them
+  std::uint64_t samples = 0;    // commanded samples received
 };
 
 double Norm(const v1::Vec3& v) { return std::sqrt(v.x() * v.x() + v.y() * v.y() + v.z() * v.z()); }
@@ -35,10 +59,12 @@ struct Summary {
   std::uint64_t frames = 0;  // pose frames
   std::uint64_t frames_dropped = 0;
   int probes = 0;
-  int contacts = 0;      // probes in contact (depth > 0)
-  v1::ProbeState probe;  // the probe pushed hardest in the last frame
-  double max_force = 0;  // N, over the whole run
-  double max_depth = 0;  // m, over the whole run
+  int contacts = 0;                             // probes in contact (depth > 0)
+  v1::ProbeState probe;                         // the probe pushed hardest in the last frame
+  double max_force = 0;                         // N, over the whole run
+  double max_depth = 0;                         // m, over the whole run
+  std::map<std::string, SessionLine> sessions;  // with --telemetry
+  std::uint64_t batches_dropped = 0;
 
   void Add(const v1::SceneEvent& ev) {
     ++events;
@@ -50,6 +76,21 @@ struct Summary {
     } else if (ev.has_changes()) {
       for (const auto& id : ev.changes().removed()) bodies.erase(id);
       for (const auto& b : ev.changes().added()) bodies.insert(b.body_id());
+    } else if (ev.has_telemetry()) {
+      batches_dropped = ev.telemetry().batches_dropped();
+      for (const v1::SessionTelemetry& st : ev.telemetry().sessions()) {
+        SessionLine& l = sessions[st.session_id()];
+        l.fresh = true;
+        l.update_rate_hz = st.update_rate_hz();
+        for (float f : st.server().force())
+          l.max_server_force = std::max<double>(l.max_server_force, f);
+        if (!st.has_device()) continue;
+        l.device = st.device();
+        l.have_device = true;
+        l.samples += static_cast<std::uint64_t>(st.device().commanded().force_size());
+        for (float f : st.device().commanded().force())
+          l.max_force = std::max<double>(l.max_force, f);
+      }
     } else if (ev.has_poses()) {
       ++frames;
       probes = ev.poses().probes_size();
@@ -80,6 +121,34 @@ struct Summary {
     }
     return buf;
   }
+
+  /// One line per device session that sent telemetry since the previous
+  /// call (servo rate, source, fail-safe state, the largest commanded and
+  /// server forces); resets the maxima.
+  std::string TelemetryLines() {
+    std::string out;
+    for (auto& [id, l] : sessions) {
+      if (!l.fresh) continue;
+      const v1::DeviceTelemetry& d = l.device;
+      out += l.have_device
+                 ? fmt::format(
+                       "  session {}: servo {:.0f} Hz  updates {:.0f} Hz  rtt {:.2f} ms  ir age "
+                       "{:.1f} ms  source {}  fail-safe {}  force {:.3f} N (server {:.3f} N)  "
+                       "lost {}\n",
+                       id, d.servo_rate_hz(), l.update_rate_hz, d.round_trip_ms(), d.ir_age_ms(),
+                       Short(v1::ContactSource_Name(d.source()), "CONTACT_SOURCE_"),
+                       Short(v1::FailSafeState_Name(d.fail_safe()), "FAIL_SAFE_STATE_"),
+                       l.max_force, l.max_server_force, d.commanded().samples_lost())
+                 : fmt::format(
+                       "  session {}: updates {:.0f} Hz  server force {:.3f} N (no device "
+                       "telemetry)\n",
+                       id, l.update_rate_hz, l.max_server_force);
+      l.fresh = false;
+      l.max_force = 0;
+      l.max_server_force = 0;
+    }
+    return out;
+  }
 };
 
 void RunObserve(const ObserveOptions& o) {
@@ -97,6 +166,7 @@ void RunObserve(const ObserveOptions& o) {
   v1::WatchRequest req;
   req.set_scene_id(o.scene);
   req.set_rate_hz(o.rate);
+  req.set_include_telemetry(o.telemetry);
   auto reader = stub->Watch(ctx.get(), req);
   Summary s;
   v1::SceneEvent ev;
@@ -111,6 +181,7 @@ void RunObserve(const ObserveOptions& o) {
       const double rate =
           static_cast<double>(s.frames - frames_at_line) / std::max(1e-9, seconds(now - last_line));
       std::cout << s.Line(seconds(now - t0), rate) << std::endl;
+      if (o.telemetry) std::cout << s.TelemetryLines() << std::flush;
       frames_at_line = s.frames;
       last_line = now;
       next_line += std::chrono::seconds(1);
@@ -146,6 +217,22 @@ void RunObserve(const ObserveOptions& o) {
                   {"force", {s.probe.force().x(), s.probe.force().y(), s.probe.force().z()}},
                   {"sequence", s.probe.sequence()}};
   }
+  if (o.telemetry) {
+    j["batches_dropped"] = s.batches_dropped;
+    nlohmann::json t = nlohmann::json::object();
+    for (const auto& [id, l] : s.sessions) {
+      const v1::DeviceTelemetry& d = l.device;
+      t[id] = {{"servo_rate_hz", d.servo_rate_hz()},
+               {"update_rate_hz", l.update_rate_hz},
+               {"round_trip_ms", d.round_trip_ms()},
+               {"ir_age_ms", d.ir_age_ms()},
+               {"source", Short(v1::ContactSource_Name(d.source()), "CONTACT_SOURCE_")},
+               {"fail_safe", Short(v1::FailSafeState_Name(d.fail_safe()), "FAIL_SAFE_STATE_")},
+               {"samples", l.samples},
+               {"samples_lost", d.commanded().samples_lost()}};
+    }
+    j["telemetry"] = t;
+  }
   std::cout << j.dump() << std::endl;
 }
 
@@ -162,6 +249,9 @@ void RegisterObserve(CLI::App& app) {
   cmd->add_option("--rate", o->rate, "Pose frames per second asked of the server")
       ->capture_default_str();
   cmd->add_flag("--json", o->json, "Print one JSON object at the end instead of the lines");
+  cmd->add_flag("--telemetry", o->telemetry,
+                "Also each device session's relayed telemetry: a line per session (servo rate, "
+                "source, fail-safe state, force); with --json a \"telemetry\" object");
   cmd->callback([o] { RunObserve(*o); });
 }
 

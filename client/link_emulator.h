@@ -177,6 +177,7 @@ class DelayLine {
 /// The stream numbers of the two directions (LinkSchedule's `stream`).
 inline constexpr std::uint64_t kLinkUp = 1;    ///< poses, client -> server
 inline constexpr std::uint64_t kLinkDown = 2;  ///< ContactUpdates and patches, server -> client
+inline constexpr std::uint64_t kLinkTelemetry = 3;  ///< device telemetry, client -> server
 
 /// One line describing the options, e.g. "50 ms +-10 ms one way, 1% loss".
 std::string LinkDescription(const LinkOptions& options);

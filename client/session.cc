@@ -4,10 +4,12 @@
 #include <spdlog/spdlog.h>
 
 #include "proto/wire/convert.h"
+#include "proto/wire/ranges.h"
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 namespace hapticpd::client {
 namespace {
@@ -403,6 +405,8 @@ void Session::Start(device::ServoLoop* loop) {
   if (!first_) throw SessionError("session: Start() before Connect()");
   loop_ = loop;
   stopping_ = false;
+  flush_requested_ = false;
+  flush_done_ = false;
   if (local_) local_->Start(&loop_->ir_mailbox(), clock_);
   thread_ = std::jthread([this](std::stop_token st) { Run(st); });
 }
@@ -411,6 +415,14 @@ void Session::Stop() {
   if (!thread_.joinable()) {
     first_.reset();
     return;
+  }
+  if (options_.telemetry && connected_.load()) {
+    // The network thread sends the ring's last samples first (bounded wait).
+    flush_requested_ = true;
+    const auto end = std::chrono::steady_clock::now() + std::chrono::milliseconds(500);
+    while (!flush_done_.load() && connected_.load() && std::chrono::steady_clock::now() < end) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
   }
   {
     std::lock_guard lock(ctx_mu_);
@@ -499,7 +511,10 @@ void Session::Accept(const v1::ContactUpdate& u, std::int64_t now) {
   if (!good) ++counters_.bad_updates;
   if (u.rows_size() > 0) ++counters_.contact_updates;
   counters_.max_depth = std::max(counters_.max_depth, u.depth());
-  if (rtt_us >= 0) rtt_us_.Add(rtt_us);
+  if (rtt_us >= 0) {
+    rtt_us_.Add(rtt_us);
+    last_rtt_us_ = rtt_us;
+  }
   compute_us_.Add(u.compute_time_us());
 }
 
@@ -548,6 +563,134 @@ bool Session::WritePose(Stream& s, const device::ProxySample& x, v1::CoupleReque
   return true;
 }
 
+void Session::StartTelemetry(std::int64_t now) {
+  // What the ring holds was taken while no stream was open.
+  device::SampleRing& ring = loop_->samples();
+  std::uint64_t discarded = 0;
+  device::TickSample x;
+  while (ring.Pop(&x)) ++discarded;
+  if (tel_.carry) {
+    ++discarded;
+    tel_.carry.reset();
+  }
+  tel_.sequence = 0;
+  tel_.ring_lost_base = ring.lost();
+  tel_.link_lost = 0;
+  tel_.last_ns = now;
+  tel_.next_ns = now + static_cast<std::int64_t>(options_.telemetry_interval_s * 1e9);
+  tel_.last_ticks = loop_->live().ticks.load(std::memory_order_relaxed);
+  tel_.last_local_answers = 0;
+  if (local_) {
+    const device::LocalModelStats ls = local_->stats();
+    tel_.last_local_answers = ls.local_answers + ls.server_deeper;
+  }
+  std::lock_guard lock(stats_mu_);
+  tel_.last_updates = counters_.updates;
+  counters_.telemetry_samples_discarded += discarded;
+  counters_.telemetry_samples_lost = 0;
+}
+
+bool Session::WriteTelemetry(Stream& s, const v1::CoupleRequest& req) {
+  if (!s.rw->Write(req)) return false;
+  std::lock_guard lock(stats_mu_);
+  ++counters_.telemetry_sent;
+  counters_.telemetry_samples_sent +=
+      static_cast<std::uint64_t>(req.telemetry().commanded().force_size());
+  return true;
+}
+
+bool Session::TelemetryStep(Stream& s, std::int64_t now, const device::ProxySample* latest,
+                            bool flush) {
+  device::SampleRing& ring = loop_->samples();
+  do {
+    // With an emulated link, what is in flight goes first (in order).
+    if (flush && link_) {
+      while (link_->telemetry.Receive(std::numeric_limits<std::int64_t>::max(), &tel_.due)) {
+        if (!WriteTelemetry(s, tel_.due)) return false;
+      }
+    }
+    v1::CoupleRequest& req = tel_.req;
+    req.Clear();
+    v1::DeviceTelemetry* t = req.mutable_telemetry();
+    t->set_sequence(++tel_.sequence);
+    t->set_client_time_ns(now);
+    // Every sample since the previous message, at most kMaxTelemetrySamples
+    // and offsets that fit 32 bits of microseconds (the rest go next).
+    v1::WrenchSamples* c = t->mutable_commanded();
+    std::uint64_t by_source[4] = {0, 0, 0, 0};
+    const auto take = [&](const device::TickSample& x) {
+      if (c->force_size() == 0) c->set_start_time_ns(x.time_ns);
+      const std::int64_t off = (x.time_ns - c->start_time_ns()) / 1000;
+      if (c->force_size() >= wire::kMaxTelemetrySamples || off < 0 ||
+          off > std::numeric_limits<std::uint32_t>::max()) {
+        return false;
+      }
+      c->add_offset_us(static_cast<std::uint32_t>(off));
+      c->add_force(x.force);
+      c->add_torque(x.torque);
+      ++by_source[static_cast<int>(x.source) & 3];
+      tel_.latest = x;
+      tel_.have_latest = true;
+      return true;
+    };
+    if (tel_.carry && take(*tel_.carry)) tel_.carry.reset();
+    device::TickSample x;
+    while (!tel_.carry && c->force_size() < wire::kMaxTelemetrySamples && ring.Pop(&x)) {
+      if (!take(x)) tel_.carry = x;
+    }
+    const std::uint64_t lost = ring.lost() - tel_.ring_lost_base + tel_.link_lost;
+    c->set_samples_lost(lost);
+    t->set_ticks_server(by_source[static_cast<int>(device::TickSource::kServer)]);
+    t->set_ticks_local(by_source[static_cast<int>(device::TickSource::kLocal)]);
+    t->set_ticks_faded(by_source[static_cast<int>(device::TickSource::kFaded)]);
+    // Rates since the previous message.
+    const double dt = 1e-9 * static_cast<double>(now - tel_.last_ns);
+    const auto rate = [&](std::uint64_t n) {
+      return dt > 0 ? std::min(static_cast<double>(n) / dt, wire::kTelemetryRateHz.hi) : 0.0;
+    };
+    const std::uint64_t ticks = loop_->live().ticks.load(std::memory_order_relaxed);
+    t->set_servo_rate_hz(rate(ticks - tel_.last_ticks));
+    tel_.last_ticks = ticks;
+    if (local_) {
+      const device::LocalModelStats ls = local_->stats();
+      const std::uint64_t answers = ls.local_answers + ls.server_deeper;
+      t->set_local_rate_hz(rate(answers - tel_.last_local_answers));
+      tel_.last_local_answers = answers;
+    }
+    const auto ms = [](double v) { return std::clamp(v, 0.0, wire::kTelemetryMs.hi); };
+    {
+      std::lock_guard lock(stats_mu_);
+      t->set_update_rate_hz(rate(counters_.updates - tel_.last_updates));
+      tel_.last_updates = counters_.updates;
+      t->set_round_trip_ms(ms(1e-3 * last_rtt_us_));
+      counters_.telemetry_samples_lost = lost;
+    }
+    tel_.last_ns = now;
+    if (options_.link) {
+      t->set_emulated_delay_ms(options_.link->delay_ms);
+      t->set_emulated_jitter_ms(options_.link->jitter_ms);
+      t->set_emulated_loss(options_.link->loss);
+    }
+    if (tel_.have_latest) {
+      const device::TickSample& l = tel_.latest;
+      t->set_ir_age_ms(l.ir_age_ms >= 0 ? ms(l.ir_age_ms) : 0.0);
+      t->set_fail_safe(static_cast<v1::FailSafeState>(l.fail_safe));
+      t->set_source(static_cast<v1::ContactSource>(l.source));
+    }
+    if (latest != nullptr && latest->sequence > 0) {
+      SetPose(latest->X_WH, t->mutable_handle_pose());
+      SetPose(latest->X_WA, t->mutable_proxy_pose());
+    }
+    if (link_ && !flush) {
+      const auto n = static_cast<std::uint64_t>(c->force_size());
+      if (!link_->telemetry.Send(req, now)) tel_.link_lost += n;  // next message reports it
+    } else if (!WriteTelemetry(s, req)) {
+      return false;
+    }
+  } while (flush && (tel_.carry || ring.size() > 0));
+  return true;
+}
+
 void Session::Serve(Stream& s, std::stop_token st) {
   // A new stream is a new server session: its patches start from nothing.
   if (local_) local_->Reset();
@@ -561,8 +704,37 @@ void Session::Serve(Stream& s, std::stop_token st) {
   const auto poll =
       std::chrono::nanoseconds(static_cast<std::int64_t>(options_.poll_interval_s * 1e9));
   device::ProxySample due;
+  const bool telemetry = options_.telemetry;
+  const auto telemetry_period =
+      static_cast<std::int64_t>(std::max(1e-3, options_.telemetry_interval_s) * 1e9);
+  if (telemetry) StartTelemetry(clock_->NowNs());
   while (!st.stop_requested() && !s.reader_done.load()) {
     bool idle = true;
+    if (telemetry && flush_requested_.load() && !flush_done_.load()) {
+      // Stop(): the last samples go before the stream is ended.
+      const bool ok = TelemetryStep(s, clock_->NowNs(), &in.front(), true);
+      flush_done_ = true;
+      if (!ok) break;
+    }
+    if (telemetry && !flush_done_.load()) {
+      const std::int64_t now = clock_->NowNs();
+      if (now >= tel_.next_ns) {
+        idle = false;
+        if (!TelemetryStep(s, now, &in.front(), false)) break;
+        tel_.next_ns = std::max(tel_.next_ns + telemetry_period, now);
+      }
+      if (link_) {
+        bool broken = false;
+        while (link_->telemetry.Receive(clock_->NowNs(), &tel_.due)) {
+          idle = false;
+          if (!WriteTelemetry(s, tel_.due)) {
+            broken = true;
+            break;
+          }
+        }
+        if (broken) break;
+      }
+    }
     if (in.Fetch()) {
       idle = false;
       const device::ProxySample& x = in.front();
@@ -610,6 +782,7 @@ void Session::Serve(Stream& s, std::stop_token st) {
     // What was still in flight belonged to this stream.
     link_->poses.Clear();
     link_->updates.Clear();
+    link_->telemetry.Clear();
   }
   const grpc::Status status = s.rw->Finish();
   {
@@ -686,6 +859,7 @@ SessionStats Session::stats() const {
     s.link.active = true;
     s.link.poses = link_->poses.counters();
     s.link.updates = link_->updates.counters();
+    s.link.telemetry = link_->telemetry.counters();
   }
   return s;
 }

@@ -109,13 +109,26 @@ struct SessionOptions {
   std::uint32_t patch_max_triangles = 8192;
   /// m, PatchRequest.min_margin (0: the server's default).
   double patch_min_margin = 0;
+  /// Device telemetry (CoupleRequest.telemetry): every telemetry_interval_s
+  /// the network thread drains the servo loop's sample ring
+  /// (ServoLoop::samples()) and sends one DeviceTelemetry up the stream
+  /// with every tick's commanded force and torque, the ticks per contact
+  /// source, the fail-safe state, rates, round trip, IR age, the emulated
+  /// link and the handle and proxy poses; a last one on Stop (before the
+  /// stream ends, so no tick is left out). Through the
+  /// emulated link when there is one (its own direction, kLinkTelemetry:
+  /// the poses' schedule is unchanged); what the link loses is counted in
+  /// the next message's samples_lost. The server relays it to observers.
+  bool telemetry = true;
+  double telemetry_interval_s = 0.05;
 };
 
 /// What the emulated link did (SessionOptions::link), per direction.
 struct LinkStats {
   bool active = false;
-  LinkCounters poses;    ///< client -> server
-  LinkCounters updates;  ///< server -> client
+  LinkCounters poses;      ///< client -> server
+  LinkCounters updates;    ///< server -> client
+  LinkCounters telemetry;  ///< device telemetry, client -> server
 };
 
 /// Statistics any thread may read (a consistent copy under a mutex; the
@@ -143,6 +156,15 @@ struct SessionStats {
   device::LocalModelStats local;
   std::uint64_t patches_received = 0;
   double server_clock_offset_ms = 0;  ///< server steady clock - loop clock
+  /// Device telemetry (SessionOptions::telemetry): messages written to the
+  /// stream and the servo samples in them; samples lost on the current
+  /// stream (the ring was full, or the emulated link dropped their
+  /// message: what the last message reported as samples_lost); samples
+  /// taken while no stream was open (discarded: they belong to no session).
+  std::uint64_t telemetry_sent = 0;
+  std::uint64_t telemetry_samples_sent = 0;
+  std::uint64_t telemetry_samples_lost = 0;
+  std::uint64_t telemetry_samples_discarded = 0;
 };
 
 class Session {
@@ -195,6 +217,14 @@ class Session {
   void StartLocalModel();
   /// Writes one pose to the stream (false: the stream is broken).
   bool WritePose(Stream& s, const device::ProxySample& x, v1::CoupleRequest* req);
+  /// Device telemetry (network thread): a new stream starts from an empty
+  /// ring; each step drains it into one message (`latest`: the newest proxy
+  /// sample, or null) and writes it, or hands it to the emulated link;
+  /// `flush` (Stop) repeats until the ring is empty and writes directly.
+  /// False: the stream is broken.
+  void StartTelemetry(std::int64_t now_ns);
+  bool TelemetryStep(Stream& s, std::int64_t now_ns, const device::ProxySample* latest, bool flush);
+  bool WriteTelemetry(Stream& s, const v1::CoupleRequest& req);
 
   SessionOptions options_;
   const device::Clock* clock_;
@@ -207,14 +237,19 @@ class Session {
   std::mutex ctx_mu_;
   grpc::ClientContext* live_ctx_ = nullptr;
   std::atomic<bool> stopping_{false};
+  // Stop() asks the network thread for a last telemetry message first.
+  std::atomic<bool> flush_requested_{false};
+  std::atomic<bool> flush_done_{false};
   std::atomic<bool> connected_{false};
   std::atomic<std::int64_t> stall_until_ns_{0};  // StallUpdatesFor (clock_ time)
 
   // The emulated link (options_.link), or none.
   struct Link {
-    explicit Link(const LinkOptions& o) : poses(o, kLinkUp), updates(o, kLinkDown) {}
+    explicit Link(const LinkOptions& o)
+        : poses(o, kLinkUp), updates(o, kLinkDown), telemetry(o, kLinkTelemetry) {}
     DelayLine<device::ProxySample> poses;
     DelayLine<v1::CoupleResponse> updates;  // updates and patches, in order
+    DelayLine<v1::CoupleRequest> telemetry;
   };
   std::unique_ptr<Link> link_;
 
@@ -233,8 +268,24 @@ class Session {
   double best_rtt_us_ = 0;
   std::uint64_t since_best_ = 0;
 
+  // Device telemetry: the network thread's own.
+  struct Telemetry {
+    std::uint64_t sequence = 0;
+    std::int64_t next_ns = 0;
+    std::int64_t last_ns = 0;
+    std::uint64_t ring_lost_base = 0;  // the ring's lost() when the stream started
+    std::uint64_t link_lost = 0;       // samples in messages the emulated link dropped
+    std::uint64_t last_ticks = 0, last_updates = 0, last_local_answers = 0;
+    device::TickSample latest;
+    bool have_latest = false;
+    std::optional<device::TickSample> carry;  // did not fit the previous message
+    v1::CoupleRequest req, due;
+  };
+  Telemetry tel_;
+
   mutable std::mutex stats_mu_;
   SessionStats counters_;
+  double last_rtt_us_ = 0;  // under stats_mu_
   // 1 us to 100 s, 32 bins per octave (2.2 % resolution).
   device::Histogram rtt_us_ = device::Histogram::LogScale(1, 1e8, 32);
   device::Histogram compute_us_ = device::Histogram::LogScale(1, 1e8, 32);

@@ -118,7 +118,11 @@ void TelemetryFeed::Take(std::int64_t now_ns, v1::SessionTelemetry* out) {
     // Every message's samples, on the first sample's time.
     v1::WrenchSamples merged;
     bool have_start = false;
+    std::uint64_t ticks[3] = {0, 0, 0};
     for (const v1::DeviceTelemetry& m : taken_) {
+      ticks[0] += m.ticks_server();
+      ticks[1] += m.ticks_local();
+      ticks[2] += m.ticks_faded();
       const v1::WrenchSamples& c = m.commanded();
       if (c.force_size() == 0) continue;
       if (!have_start) {
@@ -136,6 +140,9 @@ void TelemetryFeed::Take(std::int64_t now_ns, v1::SessionTelemetry* out) {
     d->Swap(&taken_.back());
     merged.set_samples_lost(d->commanded().samples_lost() + dropped);
     d->mutable_commanded()->Swap(&merged);
+    d->set_ticks_server(ticks[0]);
+    d->set_ticks_local(ticks[1]);
+    d->set_ticks_faded(ticks[2]);
   }
   v1::WrenchSamples* server = out->mutable_server();
   Answer a;

@@ -52,7 +52,8 @@ class TelemetryFeed {
 
   /// The publisher (one thread): everything since its previous Take, as
   /// `out`'s device (the latest message, its `commanded` holding every
-  /// message's samples with offsets from the first sample), server,
+  /// message's samples with offsets from the first sample and its ticks
+  /// per source summed over the messages), server,
   /// update_rate_hz (answers per second since the previous Take; 0 on the
   /// first). Leaves session_id and scene_revision to the caller.
   void Take(std::int64_t now_ns, v1::SessionTelemetry* out);

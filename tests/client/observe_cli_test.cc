@@ -96,6 +96,34 @@ TEST_F(ObserveCli, PrintsOneSummaryLinePerSecond) {
   EXPECT_NE(r.out.find(" N\n"), std::string::npos) << r.out;
 }
 
+TEST_F(ObserveCli, TelemetryShowsEachSessionsServoRateSourceFailSafeAndForce) {
+  const RunResult r =
+      RunCli("observe " + Server() + " --scene default --duration 1.5 --json --telemetry");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const nlohmann::json j = nlohmann::json::parse(r.out);
+  const std::string id = session_->stats().session_id;
+  ASSERT_TRUE(j["telemetry"].contains(id)) << r.out;
+  const auto& t = j["telemetry"][id];
+  EXPECT_GT(t["servo_rate_hz"].get<double>(), 0);
+  EXPECT_GT(t["update_rate_hz"].get<double>(), 0);
+  EXPECT_EQ(t["source"], "server");  // held in contact, the server's rows
+  // Held inside from the start, the start-up safety may still wait for a
+  // quiet command (the IR came first) or have engaged (it came later).
+  const std::string fail_safe = t["fail_safe"];
+  EXPECT_TRUE(fail_safe == "waiting" || fail_safe == "ramping" || fail_safe == "ok") << fail_safe;
+  EXPECT_GT(t["samples"].get<double>(), 100);
+  // The lines: one per session under each summary line.
+  const RunResult lines =
+      RunCli("observe " + Server() + " --scene default --duration 1.3 --telemetry");
+  ASSERT_EQ(lines.exit_code, 0) << lines.err;
+  EXPECT_NE(lines.out.find("  session " + id + ": servo "), std::string::npos) << lines.out;
+  EXPECT_NE(lines.out.find("source server  fail-safe " + fail_safe + "  force "), std::string::npos)
+      << lines.out;
+  // Without the flag, no such line.
+  const RunResult plain = RunCli("observe " + Server() + " --scene default --duration 1.3");
+  EXPECT_EQ(plain.out.find("  session "), std::string::npos) << plain.out;
+}
+
 TEST_F(ObserveCli, MissingSceneIsOneLineAndNonZero) {
   const RunResult r = RunCli("observe " + Server() + " --scene nope --duration 1");
   EXPECT_NE(r.exit_code, 0);
