@@ -2,6 +2,8 @@
 
 #include <cmath>
 
+#include "proto/wire/scene_file.h"
+
 namespace hapticpd::viewer {
 namespace {
 
@@ -22,17 +24,9 @@ json PoseJson(const v1::Pose& p) {
   return {{"p", Vec(p.position())}, {"q", std::move(q)}};
 }
 
+/// "pdt", "pdg", "none"; "" when the server left it unset.
 const char* ModeName(v1::PdMode m) {
-  switch (m) {
-    case v1::PD_MODE_NONE:
-      return "none";
-    case v1::PD_MODE_PDT:
-      return "pdt";
-    case v1::PD_MODE_PDG:
-      return "pdg";
-    default:
-      return "";
-  }
+  return m == v1::PD_MODE_UNSPECIFIED ? "" : wire::PdModeName(m);
 }
 
 const char* StatusName(v1::ContactStatus s) {

@@ -72,7 +72,9 @@ struct Viewer::Impl {
     });
   }
 
-  void Handle(const v1::SceneEvent& ev) {
+  /// `linked_now`: the first event of a stream (the snapshot): the link
+  /// state changes with the scene, in one step for browsers and /healthz.
+  void Handle(const v1::SceneEvent& ev, bool linked_now) {
     json msg = EventToJson(ev, &meshes);
     const std::string type = msg["type"];
     if (type == "scene" || type == "bodies" || type == "sessions") {
@@ -93,16 +95,20 @@ struct Viewer::Impl {
         http.BroadcastTelemetry(Members(msg));
       });
     } else if (type == "scene") {
-      http.Post([this, msg = std::move(msg)] {
+      connected = true;
+      http.Post([this, msg = std::move(msg), linked_now] {
+        if (linked_now) model.Apply(LinkJson(true, ""));
         model.Apply(msg);
-        http.ResendScene();
+        http.ResendScene();  // the whole scene holds the link state
       });
+      return;
     } else if (type == "bodies" || type == "sessions") {
       http.Post([this, msg = std::move(msg)] {
         model.Apply(msg);
         http.BroadcastReliable(std::make_shared<const std::string>(Dump(msg)));
       });
     }
+    if (linked_now) PostLink(true, "");  // a stream that did not start with a snapshot
   }
 
   void DrainPose() {
@@ -143,17 +149,17 @@ struct Viewer::Impl {
       v1::SceneEvent ev;
       bool linked = false;
       while (reader->Read(&ev)) {
-        if (!linked) {
+        const bool linked_now = !linked;
+        if (linked_now) {
           linked = true;
           backoff = opts.reconnect_min_s;
           if (!first) reconnects.fetch_add(1);
           first = false;
           last_error.clear();
           spdlog::info("viewer: watching scene '{}' on {}", opts.scene_id, opts.server);
-          PostLink(true, "");
         }
         events.fetch_add(1, std::memory_order_relaxed);
-        Handle(ev);
+        Handle(ev, linked_now);
       }
       const grpc::Status status = reader->Finish();
       std::unique_lock lock(mu);

@@ -61,12 +61,8 @@ Reply FromBeast(const http::response<http::string_body>& res) {
   return r;
 }
 
-/// One GET over a fresh connection.
-Reply Get(int port, const std::string& target, const std::string& bearer = "") {
-  net::io_context ioc;
-  beast::tcp_stream stream(ioc);
-  stream.connect(
-      tcp::endpoint(net::ip::make_address("127.0.0.1"), static_cast<unsigned short>(port)));
+template <class Stream>
+Reply GetOn(Stream& stream, const std::string& target, const std::string& bearer) {
   http::request<http::empty_body> req{http::verb::get, target, 11};
   req.set(http::field::host, "127.0.0.1");
   if (!bearer.empty()) req.set(http::field::authorization, "Bearer " + bearer);
@@ -78,12 +74,31 @@ Reply Get(int port, const std::string& target, const std::string& bearer = "") {
   return FromBeast(parser.get());
 }
 
+tcp::endpoint Loopback(int port) {
+  return tcp::endpoint(net::ip::make_address("127.0.0.1"), static_cast<unsigned short>(port));
+}
+
+/// One GET over a fresh connection; HTTPS (any certificate) when `tls`.
+Reply Get(int port, const std::string& target, const std::string& bearer = "", bool tls = false) {
+  net::io_context ioc;
+  if (!tls) {
+    beast::tcp_stream stream(ioc);
+    stream.connect(Loopback(port));
+    return GetOn(stream, target, bearer);
+  }
+  net::ssl::context ctx(net::ssl::context::tls_client);
+  ctx.set_verify_mode(net::ssl::verify_none);
+  beast::ssl_stream<beast::tcp_stream> stream(ioc, ctx);
+  beast::get_lowest_layer(stream).connect(Loopback(port));
+  stream.handshake(net::ssl::stream_base::client);
+  return GetOn(stream, target, bearer);
+}
+
 /// Raw bytes in, the response (status line, headers, body) out.
 Reply Raw(int port, const std::string& bytes) {
   net::io_context ioc;
   beast::tcp_stream stream(ioc);
-  stream.connect(
-      tcp::endpoint(net::ip::make_address("127.0.0.1"), static_cast<unsigned short>(port)));
+  stream.connect(Loopback(port));
   beast::error_code ec;
   // The viewer may answer and stop reading before all of an oversized request is sent.
   net::write(stream, net::buffer(bytes), ec);
@@ -104,8 +119,7 @@ class WsClient {
     auto& sock = beast::get_lowest_layer(ws_).socket();
     sock.open(tcp::v4());
     if (receive_buffer > 0) sock.set_option(net::socket_base::receive_buffer_size(receive_buffer));
-    beast::get_lowest_layer(ws_).connect(
-        tcp::endpoint(net::ip::make_address("127.0.0.1"), static_cast<unsigned short>(port)));
+    beast::get_lowest_layer(ws_).connect(Loopback(port));
     ws_.handshake("127.0.0.1", target, ec_);
   }
   bool open() const { return !ec_; }
@@ -150,9 +164,12 @@ class WsClient {
     return Until(type, [](const json&) { return true; });
   }
 
-  void Send(const std::string& text, bool binary = false) {
+  /// False when the viewer closed the connection before all was sent.
+  bool Send(const std::string& text, bool binary = false) {
     ws_.binary(binary);
-    ws_.write(net::buffer(text));
+    beast::error_code ec;
+    ws_.write(net::buffer(text), ec);
+    return !ec;
   }
 
  private:
@@ -221,9 +238,16 @@ class ViewerTest : public ::testing::Test {
 
   /// Starts the viewer and waits until it has the server's scene.
   void StartViewer(viewer::ViewerOptions o) {
+    const std::string token = o.http.viewer_token;
+    const bool tls = !o.http.tls_cert.empty();
     viewer_ = std::make_unique<viewer::Viewer>(std::move(o));
     viewer_->Start();
-    ASSERT_TRUE(WaitUntil([&] { return viewer_->counts().server_connected; }, kWait));
+    ASSERT_TRUE(WaitUntil(
+        [&] {
+          return json::parse(
+                     Get(viewer_->port(), "/healthz", token, tls).body)["server_connected"] == true;
+        },
+        kWait));
   }
 
   std::unique_ptr<server::HapticServer> server_;
@@ -308,12 +332,8 @@ TEST_F(ViewerTest, BodiesInjectedMovedAndRemovedReachTheBrowserLive) {
   WsClient ws(viewer_->port());
   ASSERT_TRUE(ws.Until("scene"));
   auto stub = Scenes();
-  v1::Body ball;
-  ASSERT_TRUE(testing::AddBodyRaw(*stub,
-                                  {testing::ShapeHeader("default", "sphere:0.02,1", "ball",
-                                                        MakePose(0.3, 0, 0), true)},
-                                  &ball)
-                  .ok());
+  ASSERT_TRUE(
+      testing::AddShape(*stub, "default", "sphere:0.02,1", "ball", MakePose(0.3, 0, 0), true).ok());
   const auto added = ws.Until("bodies", [](const json& m) { return HasBody(m["added"], "ball"); });
   ASSERT_TRUE(added);
   EXPECT_TRUE(viewer::IsContentHash((*added)["added"][0]["mesh"].get<std::string>()));
@@ -354,12 +374,8 @@ TEST_F(ViewerTest, TheServerGoingAwayIsShownAndTheSceneResentOnReconnect) {
   // whole new scene.
   server_ = StartServer(port);
   auto stub = Scenes();
-  v1::Body body;
-  ASSERT_TRUE(testing::AddBodyRaw(*stub,
-                                  {testing::ShapeHeader("default", "sphere:0.02,1", "fresh",
-                                                        MakePose(0, 0, 0), true)},
-                                  &body)
-                  .ok());
+  ASSERT_TRUE(
+      testing::AddShape(*stub, "default", "sphere:0.02,1", "fresh", MakePose(0, 0, 0), true).ok());
   const auto scene = ws.Until("scene", [](const json& m) { return HasBody(m["bodies"], "fresh"); });
   ASSERT_TRUE(scene);
   EXPECT_EQ((*scene)["server_connected"], true);
@@ -408,21 +424,10 @@ TEST_F(ViewerTest, ServesHttpsWithACertificate) {
   o.http.tls_key = std::string(HAPTICPD_TESTDATA_DIR) + "/tls/server.key";
   StartViewer(std::move(o));
   EXPECT_EQ(viewer_->url().substr(0, 8), "https://");
-  net::io_context ioc;
-  net::ssl::context ctx(net::ssl::context::tls_client);
-  ctx.set_verify_mode(net::ssl::verify_none);
-  beast::ssl_stream<beast::tcp_stream> stream(ioc, ctx);
-  beast::get_lowest_layer(stream).connect(tcp::endpoint(
-      net::ip::make_address("127.0.0.1"), static_cast<unsigned short>(viewer_->port())));
-  stream.handshake(net::ssl::stream_base::client);
-  http::request<http::empty_body> req{http::verb::get, "/healthz", 11};
-  req.set(http::field::host, "127.0.0.1");
-  http::write(stream, req);
-  beast::flat_buffer buf;
-  http::response<http::string_body> res;
-  http::read(stream, buf, res);
-  EXPECT_EQ(res.result_int(), 200u);
-  EXPECT_EQ(json::parse(res.body())["server_connected"], true);
+  const Reply health = Get(viewer_->port(), "/healthz", "", true);
+  EXPECT_EQ(health.status, 200);
+  EXPECT_EQ(json::parse(health.body)["server_connected"], true);
+  EXPECT_NE(Get(viewer_->port(), "/", "", true).body.find("hapticpd view"), std::string::npos);
   // Plain HTTP to the TLS port gets no page.
   EXPECT_NE(Raw(viewer_->port(), "GET / HTTP/1.1\r\nHost: x\r\n\r\n").status, 200);
 
@@ -469,18 +474,18 @@ TEST_F(ViewerTest, BadWebSocketMessagesGetErrorsAndNeverCrash) {
   StartViewer(Options());
   WsClient ws(viewer_->port());
   ASSERT_TRUE(ws.Until("scene"));
-  ws.Send(R"({"type":"ping","t":12.5})");
+  ASSERT_TRUE(ws.Send(R"({"type":"ping","t":12.5})"));
   const auto pong = ws.Until("pong");
   ASSERT_TRUE(pong);
   EXPECT_EQ((*pong)["t"], 12.5);
   for (const std::string& bad : {std::string("not json"), std::string("[1,2]"),
                                  std::string(R"({"type":"delete-all"})"), std::string("{}")}) {
-    ws.Send(bad);
+    ASSERT_TRUE(ws.Send(bad));
     const auto err = ws.Until("error");
     ASSERT_TRUE(err) << bad;
     EXPECT_FALSE((*err)["message"].get<std::string>().empty());
   }
-  ws.Send("\x01\x02", true);
+  ASSERT_TRUE(ws.Send("\x01\x02", true));
   ASSERT_TRUE(ws.Until("error"));
   EXPECT_GE(viewer_->counts().http.ws_messages_bad, 5u);
   // Over the size limit, or text that is not UTF-8 (RFC 6455 fails the
