@@ -56,22 +56,28 @@ runTest('view_live', async (ctx) => {
   });
 
   // The device session: the stick starts above the scene, centred over the
-  // block, presses 20 mm down and comes back over 6 s.
-  const device = server.device('live', { script: 'press', duration: 6 });
+  // block, presses 20 mm down and comes back over 9 s (in the block for
+  // about 6 s: time for the screenshot on a loaded machine).
+  const t0 = Date.now();
+  const stamp = (what) => console.log(`${((Date.now() - t0) / 1000).toFixed(1)} s: ${what}`);
+  const device = server.device('live', { script: 'press', duration: 9 });
   ctx.procs.push(device);
 
   await waitView(page, () => window.__rec.probes === 1 && window.__rec.sessions >= 1,
                  { what: "the device session's probe shown" });
+  stamp('probe shown');
   await waitView(page, () => {
     const r = window.__rec;
     return r.lo && Math.hypot(r.hi[0] - r.lo[0], r.hi[1] - r.lo[1], r.hi[2] - r.lo[2]) > 0.002;
   }, { what: 'the probe shown moving more than 2 mm' });
+  stamp('probe moved');
   // The picture for the README while the stick is in the block (not fatal if missed).
   await waitView(page, () => __count(window.hapticpdView.contacts) > 0,
                  { timeoutMs: 10000, what: 'a contact on screen for the screenshot' })
     .catch((e) => console.log(`note: ${e.message.split('\n')[0]}`));
   fs.mkdirSync(path.dirname(config.screenshot), { recursive: true });
   await page.screenshot({ path: config.screenshot });
+  stamp('screenshot taken');
   const png = fs.readFileSync(config.screenshot);
   check(png.length > 10000 && png.readUInt32BE(16) === 1280 && png.readUInt32BE(20) === 800,
         `screenshot ${config.screenshot} is a 1280x800 PNG (${png.length} bytes)`);
