@@ -1,4 +1,4 @@
-// hapticpd bench table1|accuracy|peers: what accuracy costs in time, on the
+// hapticpd bench table1|accuracy|peers|cold: what accuracy costs in time, on the
 // seed paper's benchmarks (client/bench/). Prints tables (or JSON) and,
 // for accuracy, writes Pareto plots as SVG. hapticpd bench delay: how the
 // feel survives a slow link (client/bench/delay.h), with a force plot.
@@ -7,12 +7,14 @@
 #include <cstdlib>
 #include <ctime>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <memory>
 #include <sstream>
 #include <string>
 
 #include "client/bench/accuracy.h"
+#include "client/bench/cold.h"
 #include "client/bench/delay.h"
 #include "client/bench/peers.h"
 #include "client/bench/scenarios.h"
@@ -140,6 +142,68 @@ void RunAccuracyCmd(const BenchOptions& o) {
   } else {
     bench::PrintAccuracy(std::cout, report);
     for (const auto& p : written) std::cout << "wrote " << p.string() << "\n";
+  }
+}
+
+struct ColdCmdOptions {
+  std::string models;
+  bool models_given = false;
+  bool json = false;
+  bool procedural = false;
+  std::string out = "hapticpd-bench-cold";
+  std::string write_reference;
+  int poses = 16;
+  std::uint64_t seed = 1;
+};
+
+void RunColdCmd(const ColdCmdOptions& o) {
+  bench::ColdOptions c;
+  {
+    BenchOptions b;
+    b.models = o.models;
+    b.models_given = o.models_given;
+    c.models = o.procedural ? "" : ResolveModels("cold", b);
+  }
+  c.procedural_only = o.procedural;
+  c.poses = o.poses;
+  c.seed = o.seed;
+  const std::filesystem::path out(o.out);
+  std::error_code ec;
+  std::filesystem::create_directories(out, ec);
+  if (!std::filesystem::is_directory(out)) {
+    throw CommandError("bench cold: --out: cannot create folder '" + o.out + "'");
+  }
+  std::ostream& notes = o.json ? std::cerr : std::cout;
+  const bench::ColdReport report = bench::RunCold(c, &notes);
+  std::string command = "hapticpd bench cold --poses " + std::to_string(o.poses) + " --seed " +
+                        std::to_string(o.seed);
+  if (o.procedural) command += " --procedural";
+  if (o.models_given) command += " --models " + o.models;
+  const std::time_t now = std::time(nullptr);
+  char date[64];
+  std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
+  const std::filesystem::path svg = out / "cold.svg";
+  try {
+    bench::WriteColdSvg(svg, report,
+                        std::string("hapticpd bench cold, ") + date + ": " + command +
+                            ", load average " + report.load_average);
+  } catch (const std::runtime_error& e) {
+    throw CommandError(std::string("bench cold: ") + e.what());
+  }
+  if (!o.write_reference.empty()) {
+    std::ofstream f(o.write_reference);
+    f << bench::ColdPosesToJson(report.poses, c).dump(1) << "\n";
+    if (!f)
+      throw CommandError("bench cold: --write-reference: cannot write '" + o.write_reference + "'");
+  }
+  if (o.json) {
+    nlohmann::json j = bench::ToJson(report);
+    j["svg"] = svg.string();
+    std::cout << j.dump(2) << "\n";
+  } else {
+    bench::PrintCold(std::cout, report);
+    std::cout << "wrote " << svg.string() << "\n";
+    if (!o.write_reference.empty()) std::cout << "wrote " << o.write_reference << "\n";
   }
 }
 
@@ -305,6 +369,32 @@ void RegisterBench(CLI::App& app) {
         "FCL) and one boolean collision query, on the same poses; ratios and errors");
     add_common(cmd, o, 1000);
     cmd->callback([o] { RunPeersCmd(*o); });
+  }
+  {
+    auto o = std::make_shared<ColdCmdOptions>();
+    auto* cmd = bench->add_subcommand(
+        "cold",
+        "Cold PDt and PDg (no motion coherence) at random deep poses with random rotations on "
+        "shared-model and procedural pairs: every answer verified with FCL, the ratio to "
+        "sampled upper bounds (exact on convex pairs), time; a plot");
+    cmd->add_option("--models", o->models,
+                    "Folder with stanford-bunny.obj, spot.obj and beast.obj (default "
+                    "$HAPTICPD_MODELS_DIR or ../shared/models; without them procedural pairs "
+                    "only)")
+        ->type_name("DIR")
+        ->each([o](const std::string&) { o->models_given = true; });
+    cmd->add_flag("--json", o->json, "Print JSON (progress goes to stderr)");
+    cmd->add_flag("--procedural", o->procedural, "Procedural pairs only (the stored test set)");
+    cmd->add_option("--out", o->out, "Folder for cold.svg")->capture_default_str();
+    cmd->add_option("--poses", o->poses, "Poses per pair")
+        ->check(CLI::Range(1, 10000))
+        ->capture_default_str();
+    cmd->add_option("--seed", o->seed, "Seed of the poses and the sampling bounds")
+        ->capture_default_str();
+    cmd->add_option("--write-reference", o->write_reference,
+                    "Also write the poses and their reference bounds as JSON (tests/data/cold/)")
+        ->type_name("FILE");
+    cmd->callback([o] { RunColdCmd(*o); });
   }
   {
     auto o = std::make_shared<DelayCmdOptions>();
