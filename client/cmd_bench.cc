@@ -52,6 +52,23 @@ std::string ResolveModels(const std::string& sub, const BenchOptions& o) {
   return "";
 }
 
+/// The current time for plot titles, e.g. "2026-12-03 19:30 UTC".
+std::string UtcNow() {
+  const std::time_t now = std::time(nullptr);
+  char date[64];
+  std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
+  return date;
+}
+
+/// Creates the output folder `dir` of `bench SUB` (given by `option`).
+void MakeOutputFolder(const std::string& sub, const std::string& option, const std::string& dir) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (!std::filesystem::is_directory(dir)) {
+    throw CommandError("bench " + sub + ": " + option + ": cannot create folder '" + dir + "'");
+  }
+}
+
 std::vector<bench::Benchmark> Prepare(const std::string& sub, const BenchOptions& o,
                                       std::ostream& notes) {
   const std::string models = ResolveModels(sub, o);
@@ -103,11 +120,7 @@ void RunPeersCmd(const BenchOptions& o) {
 
 void RunAccuracyCmd(const BenchOptions& o) {
   if (!o.svg_dir.empty()) {
-    std::error_code ec;
-    std::filesystem::create_directories(o.svg_dir, ec);
-    if (!std::filesystem::is_directory(o.svg_dir)) {
-      throw CommandError("bench accuracy: --svg: cannot create folder '" + o.svg_dir + "'");
-    }
+    MakeOutputFolder("accuracy", "--svg", o.svg_dir);
   }
   bench::AccuracyOptions a;
   a.models = ResolveModels("accuracy", o);
@@ -128,9 +141,7 @@ void RunAccuracyCmd(const BenchOptions& o) {
   const bench::AccuracyReport report = bench::RunAccuracy(a, &std::cerr);
   std::vector<std::filesystem::path> written;
   if (!o.svg_dir.empty()) {
-    const std::time_t now = std::time(nullptr);
-    char date[64];
-    std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
+    const std::string date = UtcNow();
     written = bench::WriteAccuracySvgs(
         o.svg_dir, report, std::string("hapticpd bench accuracy, ") + date + ": " + o.command_line);
   }
@@ -167,21 +178,15 @@ void RunColdCmd(const ColdCmdOptions& o) {
   c.procedural_only = o.procedural;
   c.poses = o.poses;
   c.seed = o.seed;
+  MakeOutputFolder("cold", "--out", o.out);
   const std::filesystem::path out(o.out);
-  std::error_code ec;
-  std::filesystem::create_directories(out, ec);
-  if (!std::filesystem::is_directory(out)) {
-    throw CommandError("bench cold: --out: cannot create folder '" + o.out + "'");
-  }
   std::ostream& notes = o.json ? std::cerr : std::cout;
   const bench::ColdReport report = bench::RunCold(c, &notes);
   std::string command = "hapticpd bench cold --poses " + std::to_string(o.poses) + " --seed " +
                         std::to_string(o.seed);
   if (o.procedural) command += " --procedural";
   if (o.models_given) command += " --models " + o.models;
-  const std::time_t now = std::time(nullptr);
-  char date[64];
-  std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
+  const std::string date = UtcNow();
   const std::filesystem::path svg = out / "cold.svg";
   try {
     bench::WriteColdSvg(svg, report,
@@ -267,12 +272,8 @@ void RunDelayCmd(const DelayCmdOptions& o) {
     b.models_given = o.models_given;
     d.models = ResolveModels("delay", b);
   }
+  MakeOutputFolder("delay", "--out", o.out);
   const std::filesystem::path out(o.out);
-  std::error_code ec;
-  std::filesystem::create_directories(out, ec);
-  if (!std::filesystem::is_directory(out)) {
-    throw CommandError("bench delay: --out: cannot create folder '" + o.out + "'");
-  }
   std::ostream& notes = o.json ? std::cerr : std::cout;
   notes << "hapticpd bench delay: " << d.delays_ms.size() << " delays x " << d.scripts.size()
         << " scripts in real time\n";
@@ -286,9 +287,7 @@ void RunDelayCmd(const DelayCmdOptions& o) {
   if (o.time_scale != 1) command += " --time-scale " + std::to_string(o.time_scale);
   if (o.server_only) command += " --server-only";
   if (o.models_given) command += " --models " + o.models;
-  const std::time_t now = std::time(nullptr);
-  char date[64];
-  std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M UTC", std::gmtime(&now));
+  const std::string date = UtcNow();
   const std::filesystem::path svg = out / "delay_force.svg";
   try {
     bench::WriteDelaySvg(svg, report,
