@@ -199,6 +199,16 @@ void RunDevice(const DeviceOptions& o) {
   // The scene's declared effects (Welcome.scene_config).
   config.effects = client::EffectsFromSceneConfig(session.welcome().scene_config());
   config.effect_params = client::EffectParamsFromSceneConfig(session.welcome().scene_config());
+  if (rec) {
+    // Version 2: what `hapticpd view --replay` needs to show the session.
+    rec->SetHeader({{"scene", o.scene},
+                    {"server", o.conn.server},
+                    {"probe", o.probe_body.empty() ? o.probe : "body:" + o.probe_body},
+                    {"mode", o.mode},
+                    {"X_WD", device::PoseValue(X_WD)},
+                    {"X_PA", device::PoseValue(session.X_PA())}});
+    config.recorder = rec.get();
+  }
   device::ServoLoop loop(used, config, &clock);
   session.Start(&loop);
   loop.Start();
@@ -356,7 +366,9 @@ void RegisterDevice(CLI::App& app) {
   cmd->add_option("--travel", o->travel, "Script travel (m)")->capture_default_str();
   cmd->add_option("--max-rate", o->max_rate, "Ask the server for at most this many updates/s")
       ->capture_default_str();
-  cmd->add_option("--record", o->record, "Write the device trajectory to this CSV");
+  cmd->add_option("--record", o->record,
+                  "Write the session to this CSV (the device trajectory, and per tick the proxy "
+                  "pose and contact rows; hapticpd view --replay shows it)");
   cmd->add_flag("--json", o->json, "Print the statistics as one JSON object");
   AddLinkOptions(cmd, &o->link);
   cmd->add_option("--local-model", o->local_model,

@@ -1,6 +1,7 @@
 // Recording and replaying device trajectories.
 //
-// CSV format ("hapticpd device trajectory v1"), one line per servo tick:
+// CSV format, one line per servo tick. Version 1 ("hapticpd device
+// trajectory v1") holds what the device read and was commanded:
 //
 //   # hapticpd device trajectory v1
 //   # device: <DeviceInfo::name>
@@ -13,14 +14,33 @@
 // commanded on the handle at that tick (N, N m, in D; zero when nothing was
 // commanded). Lines starting with '#' are comments; the header line is
 // required. Numbers are written with 9 significant digits after the point.
+//
+// Version 2 ("hapticpd device trajectory v2", what `hapticpd device
+// --record` writes) adds what a replay needs to show the session
+// (`hapticpd view --replay`): `# key: value` header lines (device, scene,
+// server, probe, mode, X_WD and X_PA as "px py pz qw qx qy qz"; unknown
+// keys are kept and ignored) and, per tick, after the 21 columns above:
+//
+//   ...,ax,ay,az,aqw,aqx,aqy,aqz,source,rows
+//
+// a: the probe's mesh frame (the proxy, X_WA) in the world W; source: the
+// model the tick's contact came from (TickSource: 1 the server, 2 the local
+// patch, 3 none or faded); rows: the IR's contact rows touching at the proxy (at most
+// kMaxRecordedRows, the deepest), each "x y z nx ny nz depth" (contact point
+// and unit normal in W, depth at the proxy in m), separated by ';' (empty:
+// none). Both versions load with LoadTrajectoryCsv (the trajectory) and
+// LoadRecording (everything).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "device/haptic_device.h"
+#include "device/servo_loop.h"
 
 namespace hapticpd::device {
 
@@ -30,9 +50,44 @@ struct TrajectorySample {
   Wrench F_cmd_D;
 };
 
-/// Loads a trajectory CSV; throws std::runtime_error naming the file and
-/// line on a malformed file (bad header, wrong column count, non-finite
-/// number, decreasing time, non-unit quaternion).
+/// Most contact rows a recorded tick keeps (the deepest at the proxy).
+inline constexpr int kMaxRecordedRows = 8;
+
+struct RecordedRow {
+  Vec3 p_W = Vec3::Zero();  ///< contact point (W)
+  Vec3 n_W = Vec3::Zero();  ///< unit normal, from the body towards the probe
+  double depth = 0;         ///< m, at the proxy pose
+};
+
+/// What version 2 adds to a tick: the proxy and its contacts.
+struct RecordedTick {
+  Pose X_WA;                ///< the probe's mesh frame (the proxy) in W
+  std::uint8_t source = 3;  ///< TickSource (1 server, 2 local, 3 none or faded)
+  int num_rows = 0;
+  std::array<RecordedRow, kMaxRecordedRows> rows{};
+};
+
+struct Recording {
+  int version = 1;
+  /// `# key: value` header lines (v2; v1 has "device" only).
+  std::vector<std::pair<std::string, std::string>> header;
+  std::vector<TrajectorySample> samples;
+  /// One per sample (v2), empty for v1.
+  std::vector<RecordedTick> ticks;
+  /// The value of a header key, or "" when absent.
+  std::string Header(const std::string& key) const;
+};
+
+/// Loads a v1 or v2 recording; throws std::runtime_error naming the file
+/// and line on a malformed file (bad header, wrong column count, non-finite
+/// number, decreasing time, non-unit quaternion, a malformed row).
+Recording LoadRecording(const std::filesystem::path& path);
+/// Formats a pose as a header value, "px py pz qw qx qy qz"; ParsePoseValue
+/// reads it back (throws std::invalid_argument naming the problem).
+std::string PoseValue(const Pose& X);
+Pose ParsePoseValue(const std::string& value);
+
+/// The trajectory of a v1 or v2 recording (LoadRecording(path).samples).
 std::vector<TrajectorySample> LoadTrajectoryCsv(const std::filesystem::path& path);
 /// Writes samples in the format above; throws std::runtime_error on I/O errors.
 void WriteTrajectoryCsv(const std::filesystem::path& path, const std::string& device_name,
@@ -41,11 +96,20 @@ void WriteTrajectoryCsv(const std::filesystem::path& path, const std::string& de
 /// Records what a device reads and is commanded by wrapping it (decorator):
 /// Read/Command forward to the wrapped device and append to a buffer
 /// reserved up front (no allocation on the servo thread; samples past the
-/// capacity are dropped and counted). Write the file with Save() once the
-/// loop has stopped.
-class RecordingDevice final : public HapticDevice {
+/// capacity are dropped and counted). Set as the loop's
+/// ServoConfig::recorder it also keeps each tick's proxy and contact rows,
+/// and Save() writes version 2 with the header given to SetHeader. Write
+/// the file with Save() once the loop has stopped.
+class RecordingDevice final : public HapticDevice, public TickRecorder {
  public:
   RecordingDevice(HapticDevice* inner, std::size_t capacity_samples);
+  /// Header lines for version 2 (e.g. {"scene", "default"}); call before
+  /// the loop starts.
+  void SetHeader(std::vector<std::pair<std::string, std::string>> header) {
+    header_ = std::move(header);
+  }
+  void OnTick(const TickRecord& r, const ProxySample& s, const IntermediateRep* ir) override;
+  const std::vector<RecordedTick>& ticks() const { return ticks_; }
   void Open() override { inner_->Open(); }
   void Close() override { inner_->Close(); }
   bool is_open() const override { return inner_->is_open(); }
@@ -61,6 +125,8 @@ class RecordingDevice final : public HapticDevice {
  private:
   HapticDevice* inner_;
   std::vector<TrajectorySample> samples_;
+  std::vector<RecordedTick> ticks_;
+  std::vector<std::pair<std::string, std::string>> header_;
   std::int64_t t0_ns_ = 0;
   std::uint64_t dropped_ = 0;
   bool pending_ = false;  // the last sample awaits its command

@@ -258,6 +258,9 @@ void ServoLoop::Tick(std::int64_t now_ns) {
   s.w_W = proxy_.w_W;
   s.X_WH = r.X_WH;
   s.F_cmd_W = r.F_cmd_W;
+  if (config_.recorder != nullptr) {
+    config_.recorder->OnTick(r, s, eval_.has_ir() ? &eval_.current() : nullptr);
+  }
   proxy_out_.Publish();
   PushSample(r);
 

@@ -27,6 +27,8 @@
 
 namespace hapticpd::device {
 
+class TickRecorder;
+
 /// The proxy pose the loop publishes every tick (what a Session sends to the
 /// server as a ProbePose, and what LocalPdIrSource computes PD for).
 struct ProxySample {
@@ -108,6 +110,8 @@ struct ServoConfig {
   /// Ticks the sample ring (ServoLoop::samples()) holds for its consumer; a
   /// tick that finds it full is counted lost. 0: no ring, no samples.
   std::size_t sample_ring_capacity = 4096;
+  /// Sees every tick (not owned; must outlive the loop); null: none.
+  TickRecorder* recorder = nullptr;
 };
 
 /// Everything one tick saw and did (for tests, traces and the recorder).
@@ -132,6 +136,15 @@ struct TickRecord {
   double contact_weight = 1;
   TickSource source = TickSource::kFaded;  ///< the model this tick's contact came from
   FailSafe fail_safe = FailSafe::kWaiting;
+};
+
+/// Sees every tick at its end, on the servo thread (e.g. RecordingDevice,
+/// for a replay that shows the proxy and its contacts). OnTick must not
+/// allocate, lock or log. `ir` is the IR rendered, or null before the first.
+class TickRecorder {
+ public:
+  virtual ~TickRecorder() = default;
+  virtual void OnTick(const TickRecord& r, const ProxySample& s, const IntermediateRep* ir) = 0;
 };
 
 /// Counters other threads may read while the loop runs.

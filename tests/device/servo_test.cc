@@ -234,6 +234,88 @@ TEST(Recorder, RecordThenReplayReproducesTheTrajectory) {
   std::filesystem::remove(path);
 }
 
+// Version 2: with the recorder set on the loop, each tick keeps the proxy
+// pose and the IR's rows touching at the proxy, and the header; all of it
+// loads back, and a v2 file still replays as a trajectory.
+TEST(Recorder, VersionTwoKeepsTheProxyAndItsContactRows) {
+  ManualClock clock;
+  SimulatedDevice sim(Script(HandScript::kHold, 1), &clock);
+  RecordingDevice rec(&sim, 200);
+  rec.SetHeader({{"scene", "default"}, {"probe", "shape:stick"}, {"X_WD", PoseValue(Pose{})}});
+  rec.Open();
+  ServoConfig cfg;
+  cfg.recorder = &rec;
+  ServoLoop loop(&rec, cfg, &clock);
+  for (int i = 1; i <= 100; ++i) {
+    clock.Set(i * 1'000'000LL);
+    if (i == 50) {
+      // A floor 2 mm above the proxy: one row, 2 mm deep where it is.
+      IntermediateRep ir;
+      ir.X_WP_ref = loop.last_tick().proxy.X_WP;
+      ir.receive_time_ns = clock.NowNs();
+      ir.num_rows = 1;
+      ir.rows[0].p_W = ir.X_WP_ref.t + Vec3(0, 0, -0.01);
+      ir.rows[0].n_W = Vec3::UnitZ();
+      ir.rows[0].depth = 0.002;
+      ir.rows[0].stiffness = 100;
+      loop.ir_mailbox().Write(ir);
+    }
+    loop.Tick(clock.NowNs());
+  }
+  ASSERT_EQ(rec.ticks().size(), 100u);
+  const auto path = std::filesystem::temp_directory_path() / "hapticpd_recorder_v2_test.csv";
+  rec.Save(path);
+  const Recording r = LoadRecording(path);
+  EXPECT_EQ(r.version, 2);
+  EXPECT_EQ(r.Header("scene"), "default");
+  EXPECT_EQ(r.Header("probe"), "shape:stick");
+  EXPECT_LT(ParsePoseValue(r.Header("X_WD")).t.norm(), 1e-12);
+  ASSERT_EQ(r.samples.size(), 100u);
+  ASSERT_EQ(r.ticks.size(), 100u);
+  EXPECT_EQ(r.ticks[10].num_rows, 0);
+  ASSERT_EQ(r.ticks[60].num_rows, 1);
+  EXPECT_NEAR(r.ticks[60].rows[0].n_W.z(), 1.0, 1e-6);
+  EXPECT_GT(r.ticks[60].rows[0].depth, 0.0015);
+  EXPECT_EQ(r.ticks[60].source, static_cast<std::uint8_t>(TickSource::kServer));
+  EXPECT_LT((r.ticks[99].X_WA.t - rec.ticks()[99].X_WA.t).norm(), 1e-8);
+  EXPECT_EQ(LoadTrajectoryCsv(path).size(), 100u);
+  std::filesystem::remove(path);
+}
+
+TEST(Recorder, MalformedVersionTwoRowsNameTheProblem) {
+  const auto path = std::filesystem::temp_directory_path() / "hapticpd_bad_traj_v2.csv";
+  const std::string head =
+      "# hapticpd device trajectory v2\n# scene: s\n"
+      "t_s,px,py,pz,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,buttons,fx,fy,fz,tx,ty,tz,"
+      "ax,ay,az,aqw,aqx,aqy,aqz,source,rows\n"
+      "0,0,0,0,1,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,1,0,0,0,1,\n";
+  const std::pair<std::string, std::string> cases[] = {
+      {"0.001,0,0,0,1,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,1,0,0,0,1,0 0 0 0 0 1\n",
+       ":5: row 1 is not 7 finite numbers"},
+      {"0.001,0,0,0,1,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,1,0,0,0,1,0 0 0 0 0 1 nan\n",
+       ":5: row 1 is not 7 finite numbers"},
+      {"0.001,0,0,0,1,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,2,0,0,0,1,\n",
+       ":5: the proxy pose (columns 22-28): quaternion is not unit"},
+      {"0.001,0,0,0,1,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,1,0,0,0,7,\n",
+       ":5: source is not 1, 2 or 3"},
+      {"0.001,0,0,0,1,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,1,0,0,0,1\n",
+       ":5: expected 30 columns, got 29"},
+  };
+  for (const auto& [line, want] : cases) {
+    {
+      std::ofstream f(path);
+      f << head << line;
+    }
+    try {
+      LoadRecording(path);
+      ADD_FAILURE() << "no error for " << line;
+    } catch (const std::runtime_error& e) {
+      EXPECT_NE(std::string(e.what()).find(want), std::string::npos) << e.what();
+    }
+  }
+  std::filesystem::remove(path);
+}
+
 TEST(Recorder, MalformedCsvNamesFileAndLine) {
   const auto path = std::filesystem::temp_directory_path() / "hapticpd_bad_traj.csv";
   {
