@@ -13,8 +13,13 @@ namespace {
 
 struct ViewOptions {
   ConnectionOptions conn;
-  std::string scene = "default";
+  std::string scene;
   ViewerFlags viewer;
+  // --replay: a `device --record` file played instead of a live scene.
+  std::string replay, scene_file, probe;
+  double speed = 1;
+  bool loop = false;
+  bool server_given = false;  // --server on the command line (else the recording's)
 };
 
 void RunView(const ViewOptions& o) {
@@ -25,10 +30,32 @@ void RunView(const ViewOptions& o) {
   sigaddset(&signals, SIGINT);
   sigaddset(&signals, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
-  viewer::Viewer v(ViewerOptionsFor(o.conn, o.scene, o.viewer));
+  viewer::ViewerOptions vo = ViewerOptionsFor(o.conn, o.scene, o.viewer);
+  if (!o.replay.empty()) {
+    viewer::ReplaySources src;
+    src.scene_file = o.scene_file;
+    src.scene_id = o.scene;
+    src.server = o.server_given ? o.conn.server : "";
+    src.probe = o.probe;
+    src.server_token = o.conn.token;
+    src.make_channel = [conn = o.conn](const std::string& server) {
+      ConnectionOptions c = conn;
+      c.server = server;
+      return MakeChannel(c);
+    };
+    vo.replay = std::make_shared<viewer::ReplayPlayer>(viewer::LoadReplay(o.replay, src), o.loop);
+    vo.scene_id = vo.replay->input().scene.scene_id();
+    vo.replay_speed = o.speed;
+    vo.server.clear();  // /healthz: the source says where the scene came from
+  }
+  viewer::Viewer v(std::move(vo));
   v.Start();
-  std::cout << "hapticpd view: scene '" << o.scene << "' on " << o.conn.server << " at " << v.url()
-            << std::endl;
+  if (o.replay.empty()) {
+    std::cout << "hapticpd view: scene '" << o.scene << "' on " << o.conn.server << " at "
+              << v.url() << std::endl;
+  } else {
+    std::cout << "hapticpd view: replay of " << o.replay << " at " << v.url() << std::endl;
+  }
   int sig = 0;
   sigwait(&signals, &sig);
   spdlog::info("received {}, stopping the viewer", sig == SIGINT ? "SIGINT" : "SIGTERM");
@@ -69,9 +96,28 @@ void RegisterView(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "view", "Watch a scene in a browser: serves a 3D page and a WebSocket (until Ctrl-C)");
   AddConnectionOptions(cmd, &o->conn);
-  cmd->add_option("--scene", o->scene, "Scene id")->required();
+  cmd->add_option("--scene", o->scene,
+                  "Scene id (with --replay: the scene to fetch, else the recording's)");
   AddViewerFlags(cmd, &o->viewer);
-  cmd->callback([o] {
+  cmd->add_option("--replay", o->replay,
+                  "Play a session recorded by `device --record` instead of watching live");
+  cmd->add_option("--scene-file", o->scene_file,
+                  "With --replay: the scene from this file instead of the server");
+  cmd->add_option(
+      "--probe", o->probe,
+      "With --replay: the probe (mesh file, shape:SPEC, body:ID) if not the recording's");
+  cmd->add_option("--speed", o->speed, "With --replay: recorded seconds per second")
+      ->capture_default_str();
+  cmd->add_flag("--loop", o->loop, "With --replay: start again after the end");
+  cmd->callback([o, cmd] {
+    o->server_given = cmd->count("--server") > 0;
+    if (o->replay.empty()) {
+      if (o->scene.empty()) throw CommandError("view: --scene is required (or --replay FILE)");
+      for (const char* flag : {"--scene-file", "--probe", "--speed", "--loop"}) {
+        if (cmd->count(flag) > 0)
+          throw CommandError(std::string("view: ") + flag + " needs --replay");
+      }
+    }
     try {
       RunView(*o);
     } catch (const viewer::ViewerError& e) {

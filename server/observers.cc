@@ -16,18 +16,8 @@ void FillBody(const BodyState& b, bool include_mesh, v1::Body* out) {
   ToProto(b.material, out->mutable_material());
   out->set_movable(b.movable);
   out->set_label(b.label);
-  const pd::Mesh& m = b.model->mesh();
-  auto* info = out->mutable_mesh_info();
-  info->set_triangles(static_cast<std::uint32_t>(m.num_triangles()));
-  info->set_vertices(static_cast<std::uint32_t>(m.num_vertices()));
-  info->set_watertight(m.watertight());
-  info->set_convex(b.model->convex());
-  ToProto(m.bounds().lo, info->mutable_aabb_min());
-  ToProto(m.bounds().hi, info->mutable_aabb_max());
-  ToProto(b.model->mass().p_MC, info->mutable_center_of_mass());
-  info->set_bounding_radius(m.bounding_radius());
-  for (const auto& d : m.diagnostics()) info->add_diagnostics(d);
-  if (include_mesh) ToProto(m, out->mutable_mesh());
+  ToProto(*b.model, out->mutable_mesh_info());
+  if (include_mesh) ToProto(b.model->mesh(), out->mutable_mesh());
 }
 
 void FillScene(const Scene& scene, const SceneSnapshot& snap, bool include_meshes, v1::Scene* out) {

@@ -127,20 +127,11 @@ grpc::Status SessionWorker::Start(const v1::Hello& h, const ScenePtr& scene, v1:
   if (mesh) probe_ = pd::MakeModel(std::move(*mesh));  // on the session's worker thread
   if (auto s = StartPatches(h); !s.ok()) return s;
   scene_ = scene;
-  const pd::Mesh& pm = probe_->mesh();
   welcome->set_protocol_version(kProtocolVersion);
   welcome->set_session_id(session_id_);
   welcome->set_mode(static_cast<v1::PdMode>(mode_));
   ToProto(probe_->mass().X_MB, welcome->mutable_probe_body_frame());
-  auto* info = welcome->mutable_probe_mesh_info();
-  info->set_triangles(static_cast<std::uint32_t>(pm.num_triangles()));
-  info->set_vertices(static_cast<std::uint32_t>(pm.num_vertices()));
-  info->set_watertight(pm.watertight());
-  info->set_convex(probe_->convex());
-  ToProto(pm.bounds().lo, info->mutable_aabb_min());
-  ToProto(pm.bounds().hi, info->mutable_aabb_max());
-  ToProto(probe_->mass().p_MC, info->mutable_center_of_mass());
-  info->set_bounding_radius(pm.bounding_radius());
+  ToProto(*probe_, welcome->mutable_probe_mesh_info());
   welcome->set_probe_mass_per_density(probe_->mass().volume);
   welcome->set_scene_revision(scene_->snapshot()->revision);
   *welcome->mutable_scene_config() = config;

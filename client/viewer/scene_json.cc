@@ -302,6 +302,7 @@ json SceneModel::FullScene() const {
   for (const auto& [id, s] : status_) status[id] = s;
   return {{"type", "scene"},
           {"scene_id", scene_id_},
+          {"source", source_},
           {"revision", revision_},
           {"observers", observers_},
           {"server_time_ns", server_time_ns_},

@@ -37,7 +37,10 @@ class MeshRefs {
 /// its network thread).
 class SceneModel {
  public:
-  explicit SceneModel(std::string scene_id) : scene_id_(std::move(scene_id)) {}
+  /// `source`: what the scene comes from, for the page ("server HOST:PORT",
+  /// "replay of FILE").
+  explicit SceneModel(std::string scene_id, std::string source = "")
+      : scene_id_(std::move(scene_id)), source_(std::move(source)) {}
 
   /// Applies an EventToJson message or a "link" message.
   void Apply(const nlohmann::json& msg);
@@ -49,9 +52,11 @@ class SceneModel {
   std::uint64_t revision() const { return revision_; }
   std::size_t bodies() const { return bodies_.size(); }
   const std::string& scene_id() const { return scene_id_; }
+  const std::string& source() const { return source_; }
 
  private:
   std::string scene_id_;
+  std::string source_;
   std::map<std::string, nlohmann::json> bodies_;    // id -> body
   std::map<std::string, nlohmann::json> sessions_;  // id -> session
   std::map<std::string, nlohmann::json> status_;    // id -> latest device status

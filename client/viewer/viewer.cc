@@ -44,6 +44,7 @@ struct Viewer::Impl {
   bool stopping = false;
   std::atomic<bool> connected{false};
   std::atomic<std::uint64_t> events{0}, reconnects{0};
+  std::atomic<bool> replay_finished{false};
 
   std::mutex pose_mu;  // the newest pose frame not yet taken by the network thread
   std::optional<json> pending_pose;
@@ -51,13 +52,15 @@ struct Viewer::Impl {
 
   explicit Impl(ViewerOptions o)
       : opts(std::move(o)),
-        model(opts.scene_id),
+        model(opts.scene_id,
+              opts.replay ? "replay of " + opts.replay->input().file : "server " + opts.server),
         http(opts.http,
              HttpServer::Hooks{[this] { return Dump(model.FullScene()); },
                                [this] {
                                  return json{{"server_connected", model.server_connected()},
                                              {"scene_id", opts.scene_id},
                                              {"server", opts.server},
+                                             {"source", model.source()},
                                              {"revision", model.revision()},
                                              {"bodies", model.bodies()}};
                                },
@@ -123,8 +126,47 @@ struct Viewer::Impl {
     http.BroadcastPoses(Members(msg));
   }
 
+  /// Plays the recording at opts.replay_speed, a pose frame per
+  /// 1 / rate_hz, until its end (then holds it) or Stop.
+  void RunReplay() {
+    ReplayPlayer& player = *opts.replay;
+    std::vector<v1::SceneEvent> evs;
+    player.Begin(&evs);
+    bool first = true;
+    for (const v1::SceneEvent& ev : evs) {
+      events.fetch_add(1, std::memory_order_relaxed);
+      Handle(ev, first);
+      first = false;
+    }
+    spdlog::info("viewer: replaying {} ({:.1f} s, scene '{}')", player.input().file,
+                 player.duration_s(), opts.scene_id);
+    const auto t0 = std::chrono::steady_clock::now();
+    const auto period = std::chrono::duration<double>(1.0 / opts.rate_hz);
+    std::unique_lock lock(mu);
+    while (!stopping && !player.finished()) {
+      lock.unlock();
+      const double play =
+          opts.replay_speed *
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      evs.clear();
+      player.AdvanceTo(play, &evs);
+      for (const v1::SceneEvent& ev : evs) {
+        events.fetch_add(1, std::memory_order_relaxed);
+        Handle(ev, false);
+      }
+      lock.lock();
+      cv.wait_for(lock, period, [this] { return stopping; });
+    }
+    if (player.finished()) {
+      replay_finished = true;
+      spdlog::info("viewer: the replay of {} ended; the page holds its last frame",
+                   player.input().file);
+    }
+  }
+
   /// Watch, read until the stream ends, wait, again; until Stop.
   void Run() {
+    if (opts.replay) return RunReplay();
     double backoff = opts.reconnect_min_s;
     bool first = true;
     std::string last_error;
@@ -186,9 +228,13 @@ struct Viewer::Impl {
 };
 
 Viewer::Viewer(ViewerOptions options) : impl_(std::make_unique<Impl>(std::move(options))) {
-  if (!impl_->opts.make_channel) throw ViewerError("viewer: no channel to the server");
+  if (!impl_->opts.make_channel && !impl_->opts.replay)
+    throw ViewerError("viewer: no channel to the server");
   if (!(impl_->opts.rate_hz > 0 && impl_->opts.rate_hz <= 1000)) {
     throw ViewerError("--rate: expected (0, 1000] frames per second");
+  }
+  if (!(impl_->opts.replay_speed > 0 && impl_->opts.replay_speed <= 100)) {
+    throw ViewerError("--speed: expected (0, 100] recorded seconds per second");
   }
 }
 
@@ -229,6 +275,7 @@ Viewer::Counts Viewer::counts() const {
   c.server_connected = impl_->connected.load();
   c.events = impl_->events.load();
   c.reconnects = impl_->reconnects.load();
+  c.replay_finished = impl_->replay_finished.load();
   c.http = impl_->http.counts();
   return c;
 }

@@ -12,6 +12,7 @@
 #include <string>
 
 #include "client/viewer/http_server.h"
+#include "client/viewer/replay.h"
 
 namespace hapticpd::viewer {
 
@@ -26,6 +27,10 @@ struct ViewerOptions {
   /// Reconnection backoff: the first wait, doubled per failure up to the last.
   double reconnect_min_s = 0.25;
   double reconnect_max_s = 5;
+  /// Set: play this recording instead of watching a server (`view
+  /// --replay`); `make_channel` is then not used.
+  std::shared_ptr<ReplayPlayer> replay;
+  double replay_speed = 1;  ///< recorded seconds per second
 };
 
 class Viewer {
@@ -49,6 +54,7 @@ class Viewer {
     bool server_connected = false;
     std::uint64_t events = 0;      ///< Watch events read
     std::uint64_t reconnects = 0;  ///< Watch streams started after the first
+    bool replay_finished = false;  ///< a replay without loop played to its end
     HttpServer::Counts http;
   };
   Counts counts() const;

@@ -379,6 +379,19 @@ void ToProto(const pd::Mesh& mesh, v1::InlineMesh* out) {
   }
 }
 
+void ToProto(const pd::GeometryModel& model, v1::MeshInfo* out) {
+  const pd::Mesh& m = model.mesh();
+  out->set_triangles(static_cast<std::uint32_t>(m.num_triangles()));
+  out->set_vertices(static_cast<std::uint32_t>(m.num_vertices()));
+  out->set_watertight(m.watertight());
+  out->set_convex(model.convex());
+  ToProto(m.bounds().lo, out->mutable_aabb_min());
+  ToProto(m.bounds().hi, out->mutable_aabb_max());
+  ToProto(model.mass().p_MC, out->mutable_center_of_mass());
+  out->set_bounding_radius(m.bounding_radius());
+  for (const auto& d : m.diagnostics()) out->add_diagnostics(d);
+}
+
 std::int64_t NowNs() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(
              std::chrono::steady_clock::now().time_since_epoch())

@@ -16,6 +16,7 @@
 #include "hapticpd/v1/haptic.pb.h"
 #include "hapticpd/v1/scene.pb.h"
 #include "hapticpd/v1/types.pb.h"
+#include "pd/geometry_model.h"
 #include "pd/material.h"
 #include "pd/mesh.h"
 #include "pd/shapes.h"
@@ -89,6 +90,9 @@ void ToProto(const Vec3& v, v1::Vec3* out);
 void ToProto(const Pose& p, v1::Pose* out);
 void ToProto(const pd::Material& m, v1::Material* out);
 void ToProto(const pd::Mesh& mesh, v1::InlineMesh* out);
+/// What observers and a session's Welcome say of a model's mesh: counts,
+/// watertight, convex, bounds, centre of mass, radius and diagnostics.
+void ToProto(const pd::GeometryModel& model, v1::MeshInfo* out);
 
 /// Steady-clock nanoseconds (the server's timestamps).
 std::int64_t NowNs();

@@ -17,6 +17,8 @@ const view = window.hapticpdView = {
   // Beyond the contract: what this browser lost, and the link's error.
   posesDropped: 0, batchesDropped: 0, serverFramesDropped: 0, serverBatchesDropped: 0,
   linkError: '', wsOpen: false, pingMs: null,
+  // What the scene comes from: "server HOST:PORT" or "replay of FILE".
+  source: '',
 };
 
 // ---------------------------------------------------------------- scene --
@@ -289,6 +291,7 @@ let sceneSeen = false, sceneMeshesPending = false;
 
 function applyScene(m) {
   document.getElementById('scene-id').textContent = `— scene '${m.scene_id}'`;
+  view.source = m.source || '';
   const ids = new Set(m.bodies.map(b => b.id));
   for (const id of [...bodies.keys()]) if (!ids.has(id)) removeBody(id);
   for (const b of m.bodies) {
@@ -479,7 +482,9 @@ function updatePanels() {
   document.getElementById('link').innerHTML =
     `browser link: <span class="${view.wsOpen ? 'ok' : 'bad'}">${view.wsOpen ? 'open' : 'closed'}</span>` +
     `${view.pingMs !== null ? ' (' + fmt(view.pingMs) + ' ms)' : ''}, ` +
-    `server: <span class="${view.serverConnected ? 'ok' : 'bad'}">${view.serverConnected ? 'linked' : 'disconnected'}</span>`;
+    (view.source.startsWith('replay')
+      ? `<span class="warn">${escapeHtml(view.source)}</span>`
+      : `server: <span class="${view.serverConnected ? 'ok' : 'bad'}">${view.serverConnected ? 'linked' : 'disconnected'}</span>`);
   document.getElementById('scene-info').innerHTML =
     `revision ${view.revision}, observers ${view.observers}, bodies ${view.bodies}, sessions ${view.sessions}<br>` +
     `dropped here: ${view.posesDropped} pose frames, ${view.batchesDropped} telemetry batches; ` +
