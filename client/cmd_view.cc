@@ -74,6 +74,9 @@ void AddViewerFlags(CLI::App* cmd, ViewerFlags* f) {
   cmd->add_option("--tls-key", f->tls_key, "PEM private key for --tls-cert");
   cmd->add_option("--rate", f->rate, "Pose frames per second asked of the server")
       ->capture_default_str();
+  cmd->add_option("--display-triangles", f->display_triangles,
+                  "Meshes over this many triangles are drawn simplified to it (0: in full)")
+      ->capture_default_str();
 }
 
 viewer::ViewerOptions ViewerOptionsFor(const ConnectionOptions& conn, const std::string& scene,
@@ -87,6 +90,7 @@ viewer::ViewerOptions ViewerOptionsFor(const ConnectionOptions& conn, const std:
   vo.server_token = conn.token;
   vo.scene_id = scene;
   vo.rate_hz = f.rate;
+  vo.display_triangles = f.display_triangles;
   vo.make_channel = [conn] { return MakeChannel(conn); };
   return vo;
 }

@@ -15,9 +15,11 @@ struct ViewerFlags {
   std::string viewer_token;
   std::string tls_cert, tls_key;
   double rate = 60;  ///< pose frames per second asked of the server
+  std::size_t display_triangles = viewer::kDefaultDisplayTriangles;
 };
 
-/// Adds --listen, --viewer-token, --tls-cert, --tls-key, --rate to `cmd`.
+/// Adds --listen, --viewer-token, --tls-cert, --tls-key, --rate,
+/// --display-triangles to `cmd`.
 void AddViewerFlags(CLI::App* cmd, ViewerFlags* f);
 
 /// The viewer of `scene` on the server `conn` names, serving as `f` says.

@@ -30,12 +30,25 @@ std::string ContentHash(std::string_view blob);
 /// Whether `text` has the form ContentHash returns.
 bool IsContentHash(std::string_view text);
 
+/// A mesh of at most `max_triangles` triangles that looks like `mesh` from
+/// a viewer's distance, for drawing in software WebGL: vertices are merged
+/// on a grid (vertex clustering, each cell's vertices replaced by their
+/// mean) whose cell grows until the triangles that do not collapse fit.
+/// Works on any triangle soup (holes, non-manifold edges). Returns `mesh`
+/// unchanged when it fits or when `max_triangles` is 0.
+v1::InlineMesh SimplifyForDisplay(const v1::InlineMesh& mesh, std::size_t max_triangles);
+
 /// Hash -> encoded mesh, shared by the Watch thread (which adds and
 /// retires) and the HTTP handlers (which read). Thread-safe.
 class MeshStore {
  public:
-  /// Encodes and stores `mesh`; returns its hash, or "" for an empty or
-  /// malformed mesh.
+  /// `max_display_triangles` > 0: meshes over it are stored simplified to
+  /// it (SimplifyForDisplay), once per distinct mesh.
+  explicit MeshStore(std::size_t max_display_triangles = 0)
+      : max_display_triangles_(max_display_triangles) {}
+  /// Encodes and stores `mesh` (simplified if over the display limit);
+  /// returns the hash of what is stored, or "" for an empty or malformed
+  /// mesh.
   std::string Add(const v1::InlineMesh& mesh);
   /// The encoded mesh, or null when unknown.
   std::shared_ptr<const std::string> Find(std::string_view hash) const;
@@ -44,8 +57,11 @@ class MeshStore {
   std::size_t size() const;
 
  private:
+  std::size_t max_display_triangles_;
   mutable std::mutex mu_;
   std::map<std::string, std::shared_ptr<const std::string>, std::less<>> meshes_;
+  /// The hash of a mesh as it came -> the hash of its simplified form.
+  std::map<std::string, std::string> simplified_;
 };
 
 }  // namespace hapticpd::viewer

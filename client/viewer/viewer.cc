@@ -52,6 +52,7 @@ struct Viewer::Impl {
 
   explicit Impl(ViewerOptions o)
       : opts(std::move(o)),
+        meshes(opts.display_triangles),
         model(opts.scene_id,
               opts.replay ? "replay of " + opts.replay->input().file : "server " + opts.server),
         http(opts.http,

@@ -16,6 +16,10 @@
 
 namespace hapticpd::viewer {
 
+/// What software WebGL draws at 30 frames/s or more beside a device session
+/// on two cores (tests/bench/README.md "Viewer").
+inline constexpr std::size_t kDefaultDisplayTriangles = 10000;
+
 struct ViewerOptions {
   HttpOptions http;
   /// A new channel to the server for each (re)connection attempt.
@@ -24,6 +28,9 @@ struct ViewerOptions {
   std::string server_token;  ///< the viewer's own token to the server (observe role)
   std::string scene_id = "default";
   double rate_hz = 60;  ///< pose frames per second asked of the server
+  /// Meshes over this many triangles are drawn simplified to it
+  /// (SimplifyForDisplay); 0 draws every mesh in full.
+  std::size_t display_triangles = kDefaultDisplayTriangles;
   /// Reconnection backoff: the first wait, doubled per failure up to the last.
   double reconnect_min_s = 0.25;
   double reconnect_max_s = 5;

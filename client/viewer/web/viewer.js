@@ -124,7 +124,8 @@ function addBody(b) {
   removeBody(b.id);
   const obj = new THREE.Group();
   const color = bodyPalette[bodies.size % bodyPalette.length];
-  const mat = new THREE.MeshPhongMaterial({ color, shininess: 20 });
+  // Lit per vertex: software WebGL draws it at a fraction of Phong's cost.
+  const mat = new THREE.MeshLambertMaterial({ color });
   const placeholder = new THREE.Mesh(boxGeometry(b.info),
     new THREE.MeshBasicMaterial({ color, wireframe: true }));
   obj.add(placeholder);
