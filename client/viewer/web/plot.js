@@ -109,7 +109,9 @@ export class SessionPlot {
     const w = Math.round(c.clientWidth * dpr), h = Math.round(c.clientHeight * dpr);
     if (w === 0 || h === 0) return;
     if (c.width !== w || c.height !== h) { c.width = w; c.height = h; }
-    const g = c.getContext('2d');
+    // A CPU canvas: in software WebGL (SwiftShader) an accelerated 2D canvas
+    // costs the page most of its frame rate.
+    const g = c.getContext('2d', { willReadFrequently: true });
     g.setTransform(dpr, 0, 0, dpr, 0, 0);
     const W = c.clientWidth, H = c.clientHeight;
     g.clearRect(0, 0, W, H);
