@@ -31,6 +31,7 @@
 #include "device/simulated_device.h"
 #include "hapticpd/v1/scene.grpc.pb.h"
 #include "pd/mesh.h"
+#include "proto/wire/routing.h"
 #include "server/convert.h"
 #include "server/scene_file.h"
 #include "server/server.h"
@@ -59,6 +60,7 @@ v1::Body AddShape(v1::SceneService::Stub& stub, const std::string& shape, const 
                   const Vec3& at) {
   grpc::ClientContext ctx;
   ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+  wire::AddSceneHeader(&ctx, "default");
   v1::Body body;
   auto w = stub.AddBody(&ctx, &body);
   v1::AddBodyRequest r;
@@ -324,6 +326,7 @@ void RunDemo(const DemoOptions& o) {
   } else {
     base.scene_id = file->scene_id;
     grpc::ClientContext ctx;
+    wire::AddSceneHeader(&ctx, base.scene_id);
     v1::GetSceneRequest req;
     req.set_scene_id(base.scene_id);
     v1::Scene scene;
@@ -354,6 +357,7 @@ void RunDemo(const DemoOptions& o) {
     v1::WatchRequest req;
     req.set_scene_id(base.scene_id);
     req.set_rate_hz(60);
+    wire::AddSceneHeader(&watch_ctx, base.scene_id);
     auto reader = scenes->Watch(&watch_ctx, req);
     v1::SceneEvent ev;
     while (reader->Read(&ev)) {

@@ -75,7 +75,7 @@ Pose FromWire(const v1::Pose& p) {
 /// the probe body), the probe's lowest point 5 mm above its top.
 Pose DefaultStart(const DeviceOptions& o, const v1::Welcome& welcome) {
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
-  auto ctx = MakeContext(o.conn);
+  auto ctx = MakeSceneContext(o.conn, o.scene);
   v1::GetSceneRequest req;
   req.set_scene_id(o.scene);
   v1::Scene scene;

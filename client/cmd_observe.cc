@@ -155,7 +155,7 @@ void RunObserve(const ObserveOptions& o) {
   if (!(o.duration >= 0)) throw CommandError("observe: --duration: expected seconds >= 0");
   if (!(o.rate > 0 && o.rate <= 1000)) throw CommandError("observe: --rate: expected (0, 1000]");
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
-  auto ctx = MakeContext(o.conn, true);
+  auto ctx = MakeSceneContext(o.conn, o.scene, true);
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
   if (o.duration > 0) {

@@ -2,6 +2,7 @@
 // `scene list|create|delete|get|load|export|import`. Each prints what it did
 // on stdout (the body id first) and fails with "hapticpd: CMD: STATUS:
 // message". Every mutation carries a fresh request id (NewRequestId).
+#include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
@@ -9,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -45,7 +47,7 @@ std::string ReadBytes(const std::string& path, const std::string& what) {
 grpc::Status UploadBody(v1::SceneService::Stub& stub, const ConnectionOptions& conn,
                         const v1::AddBodyHeader& header, const std::string& bytes,
                         std::size_t chunk, v1::Body* body) {
-  auto ctx = MakeContext(conn);
+  auto ctx = MakeSceneContext(conn, header.scene_id());
   auto writer = stub.AddBody(ctx.get(), body);
   v1::AddBodyRequest head;
   *head.mutable_header() = header;
@@ -113,7 +115,7 @@ void RunMove(const MoveOptions& o) {
   *req.mutable_pose() = ParsePose(o.pose, "--pose");
   if (!o.velocity.empty()) *req.mutable_velocity() = ParseTwist(o.velocity, "--velocity");
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
-  auto ctx = MakeContext(o.conn);
+  auto ctx = MakeSceneContext(o.conn, req.scene_id());
   v1::MoveBodyResponse resp;
   Check(stub->MoveBody(ctx.get(), req, &resp), "move");
   std::cout << o.body << " revision " << resp.revision() << "\n";
@@ -130,7 +132,7 @@ void RunRemove(const RemoveOptions& o) {
   req.set_body_id(o.body);
   req.set_request_id(NewRequestId());
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
-  auto ctx = MakeContext(o.conn);
+  auto ctx = MakeSceneContext(o.conn, req.scene_id());
   v1::RemoveBodyResponse resp;
   Check(stub->RemoveBody(ctx.get(), req, &resp), "remove");
   std::cout << o.body << " removed, revision " << resp.revision() << "\n";
@@ -144,7 +146,44 @@ struct SceneOptions {
   std::string description;
   std::string dir;  ///< `export ID DIR`
   std::size_t chunk_kib = 64;
+  std::vector<std::string> servers;  ///< `list --servers A,B`: each process directly
 };
+
+/// `scene list --servers A,B,C`: every process behind a balancer asked
+/// directly (the balancer sends a ListScenes to one of them). One line per
+/// scene, prefixed by its server; a scene held by two servers (a copy the
+/// shard map should have prevented) and a server that cannot answer are
+/// reported, and make the command fail after the listing.
+void RunSceneListAll(const SceneOptions& o) {
+  std::map<std::string, std::vector<std::string>> holders;  // scene -> servers
+  std::vector<std::string> problems;
+  for (const std::string& server : o.servers) {
+    ConnectionOptions conn = o.conn;
+    conn.server = server;
+    auto stub = v1::SceneService::NewStub(MakeChannel(conn));
+    auto ctx = MakeContext(conn);
+    v1::ListScenesResponse resp;
+    if (const grpc::Status s = stub->ListScenes(ctx.get(), {}, &resp); !s.ok()) {
+      problems.push_back(fmt::format("{}: {}", server, StatusText(s)));
+      continue;
+    }
+    for (const auto& s : resp.scenes()) {
+      std::cout << fmt::format("{}  {}  bodies {}  sessions {}  observers {}  revision {}{}\n",
+                               server, s.scene_id(), s.bodies(), s.sessions(), s.observers(),
+                               s.revision(), s.description().empty() ? "" : "  " + s.description());
+      holders[s.scene_id()].push_back(server);
+    }
+  }
+  for (const auto& [id, where] : holders) {
+    if (where.size() > 1) {
+      problems.push_back(fmt::format("scene '{}' is held by {} servers: {}", id, where.size(),
+                                     fmt::join(where, ", ")));
+    }
+  }
+  if (!problems.empty()) {
+    throw CommandError(fmt::format("scene list: {}", fmt::join(problems, "; ")));
+  }
+}
 
 /// A mesh file written by `scene export` (only "v X Y Z" and "f A B C"
 /// lines, numbers in full double precision), read back exactly: the mesh
@@ -230,7 +269,7 @@ void RunSceneLoad(const SceneOptions& o, const std::string& file, bool exact_mes
     *req.mutable_config() = f.config;
     req.set_request_id(NewRequestId());
     v1::SceneSummary resp;
-    auto ctx = MakeContext(o.conn);
+    auto ctx = MakeSceneContext(o.conn, req.scene_id());
     Check(stub->CreateScene(ctx.get(), req, &resp), cmd + ": " + f.path);
   }
   const std::size_t chunk = std::max<std::size_t>(1, o.chunk_kib) * 1024;
@@ -248,7 +287,7 @@ void RunSceneLoad(const SceneOptions& o, const std::string& file, bool exact_mes
     del.set_scene_id(id);
     del.set_request_id(NewRequestId());
     v1::DeleteSceneResponse del_resp;
-    auto ctx = MakeContext(o.conn);
+    auto ctx = MakeSceneContext(o.conn, del.scene_id());
     const grpc::Status d = stub->DeleteScene(ctx.get(), del, &del_resp);
     const std::string& body_id = uploads[i].header.spec().body_id();
     throw CommandError(
@@ -280,7 +319,7 @@ void RunSceneExport(const SceneOptions& o) {
   req.set_scene_id(o.scene);
   req.set_include_meshes(true);
   v1::Scene sc;
-  auto ctx = MakeContext(o.conn);
+  auto ctx = MakeSceneContext(o.conn, req.scene_id());
   Check(stub->GetScene(ctx.get(), req, &sc), "scene export");
   std::error_code ec;
   fs::create_directories(dir / "meshes", ec);
@@ -367,9 +406,15 @@ void RunScene(const SceneOptions& o) {
     throw CommandError("scene " + o.action + ": --scene is for load only");
   }
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
-  auto ctx = MakeContext(o.conn);
+  // `list` names no scene; every other action is for the scene `o.scene`.
+  auto ctx = o.action == "list" ? MakeContext(o.conn) : MakeSceneContext(o.conn, o.scene);
   if (o.action != "list" && o.scene.empty()) throw CommandError("scene " + o.action + ": give ID");
-  if (o.action == "list") {
+  if (!o.servers.empty() && o.action != "list") {
+    throw CommandError("scene " + o.action + ": --servers is for list only");
+  }
+  if (o.action == "list" && !o.servers.empty()) {
+    RunSceneListAll(o);
+  } else if (o.action == "list") {
     v1::ListScenesResponse resp;
     Check(stub->ListScenes(ctx.get(), {}, &resp), "scene list");
     for (const auto& s : resp.scenes()) {
@@ -475,6 +520,11 @@ void RegisterSceneOps(CLI::App& app) {
                     "load, import: scene id instead of the file's \"scene\"");
     cmd->add_option("--chunk-kib", o->chunk_kib, "load: mesh upload chunk size in KiB")
         ->capture_default_str();
+    cmd->add_option("--servers", o->servers,
+                    "list: ask each of these HOST:PORT processes directly (comma-separated; "
+                    "those behind a balancer) and prefix each scene with its server; fails when "
+                    "one cannot answer or a scene is held twice")
+        ->delimiter(',');
     cmd->callback([o] { RunScene(*o); });
   }
 }

@@ -85,6 +85,13 @@ void RegisterServe(CLI::App& app) {
                   "not loaded again. Without one (and an empty state directory): an empty scene "
                   "'default'")
       ->check(CLI::ExistingFile);
+  cmd->add_option("--shard-map", s.shard_map_file,
+                  "Shard map (lines 'PREFIX SHARD', the file HAProxy routes by; docker/README.md "
+                  "\"Scaling out\"): with --shard, this process creates, restores and preloads "
+                  "only the scenes whose longest matching prefix names it, and has no 'default' "
+                  "scene")
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--shard", s.shard, "This process's name in --shard-map");
   cmd->add_option("--state", o->state,
                   "State directory: scenes, bodies (meshes included), poses, materials, configs "
                   "and request ids are kept there (SQLite, DIR/scenes.db) and served again after "

@@ -33,7 +33,7 @@ struct WatchOptions {
 
 void RunWatch(const WatchOptions& o) {
   auto stub = v1::SceneService::NewStub(MakeChannel(o.conn));
-  auto ctx = MakeContext(o.conn, true);
+  auto ctx = MakeSceneContext(o.conn, o.scene, true);
   v1::WatchRequest req;
   req.set_scene_id(o.scene);
   req.set_rate_hz(o.rate);
@@ -91,7 +91,7 @@ void RunCouple(const CoupleOptions& o) {
     throw CommandError("couple: --mode: expected pdt, pdg or none, got '" + o.mode + "'");
   const v1::Pose a = ParsePose(o.from, "--from"), b = ParsePose(o.to, "--to");
   auto stub = v1::HapticService::NewStub(MakeChannel(o.conn));
-  auto ctx = MakeContext(o.conn, true);
+  auto ctx = MakeSceneContext(o.conn, o.scene, true);
   auto stream = stub->Couple(ctx.get());
   v1::CoupleRequest hello;
   auto* h = hello.mutable_hello();

@@ -7,6 +7,7 @@
 #include <sstream>
 #include <vector>
 
+#include "proto/wire/routing.h"
 #include "server/server.h"
 
 namespace hapticpd::cli {
@@ -70,6 +71,13 @@ std::unique_ptr<grpc::ClientContext> MakeContext(const ConnectionOptions& o, boo
     ctx->set_deadline(std::chrono::system_clock::now() +
                       std::chrono::milliseconds(static_cast<std::int64_t>(o.timeout_s * 1000)));
   }
+  return ctx;
+}
+
+std::unique_ptr<grpc::ClientContext> MakeSceneContext(const ConnectionOptions& o,
+                                                      const std::string& scene_id, bool streaming) {
+  auto ctx = MakeContext(o, streaming);
+  wire::AddSceneHeader(ctx.get(), scene_id);
   return ctx;
 }
 

@@ -27,8 +27,15 @@ void AddConnectionOptions(CLI::App* cmd, ConnectionOptions* o);
 
 std::shared_ptr<grpc::Channel> MakeChannel(const ConnectionOptions& o);
 /// A context carrying the token and (unless `streaming`) the deadline.
+/// For calls that name no scene (ListScenes).
 std::unique_ptr<grpc::ClientContext> MakeContext(const ConnectionOptions& o,
                                                  bool streaming = false);
+/// The same for a scene-scoped call: it also carries the routing header
+/// `x-hapticpd-scene: scene_id` (proto/wire/routing.h), so that a balancer
+/// sends it to the process owning the scene (docker/README.md "Scaling out").
+std::unique_ptr<grpc::ClientContext> MakeSceneContext(const ConnectionOptions& o,
+                                                      const std::string& scene_id,
+                                                      bool streaming = false);
 
 /// "CODE: message", e.g. "NOT_FOUND: scene_id: no scene 'x'".
 std::string StatusText(const grpc::Status& s);

@@ -5,6 +5,7 @@
 
 #include "proto/wire/convert.h"
 #include "proto/wire/ranges.h"
+#include "proto/wire/routing.h"
 
 #include <algorithm>
 #include <chrono>
@@ -296,6 +297,8 @@ std::unique_ptr<Session::Stream> Session::Open(bool first, std::string* error,
   }
   s->stub = v1::HapticService::NewStub(s->channel);
   if (!options_.token.empty()) s->ctx.AddMetadata("authorization", "Bearer " + options_.token);
+  // Behind a balancer the header routes the stream to the scene's process.
+  wire::AddSceneHeader(&s->ctx, options_.hello.scene_id());
   {
     std::lock_guard lock(ctx_mu_);
     if (stopping_.load()) {

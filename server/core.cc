@@ -1,5 +1,7 @@
 #include "server/core.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 
 #include "hapticpd/v1/haptic.pb.h"
@@ -65,6 +67,25 @@ void BuildPool::Loop() {
     if (--running_[job.client] == 0) running_.erase(job.client);
     cv_.notify_all();  // a job of this client may be startable now
   }
+}
+
+grpc::Status Core::CheckOwner(const std::string& id) const {
+  if (!shards) return grpc::Status::OK;
+  const std::string owner = shards->Owner(id);
+  if (owner == shard) return grpc::Status::OK;
+  if (owner.empty()) {
+    return grpc::Status(
+        grpc::StatusCode::FAILED_PRECONDITION,
+        fmt::format("scene_id: no shard owns scene '{}': no prefix in the shard map {} matches it "
+                    "(add a line 'PREFIX SHARD' for it, on every server and the balancer)",
+                    wire::Printable(id), shards->path()));
+  }
+  return grpc::Status(
+      grpc::StatusCode::FAILED_PRECONDITION,
+      fmt::format("scene_id: scene '{}' belongs to shard '{}' (shard map {}), and this is shard "
+                  "'{}': send the call through the balancer with the header x-hapticpd-scene, or "
+                  "to '{}'",
+                  wire::Printable(id), owner, shards->path(), shard, owner));
 }
 
 void Core::Register(StoppableCall* call) {

@@ -18,6 +18,7 @@
 #include "server/auth.h"
 #include "server/scene.h"
 #include "server/server.h"
+#include "server/shard_map.h"
 #include "server/stats.h"
 #include "server/store.h"
 
@@ -153,6 +154,12 @@ struct Core {
   /// Outcomes of mutations sent with a request id (set by HapticServer::Start).
   std::unique_ptr<RequestLog> requests;
   TokenStore tokens;
+  /// Sharded: the map and this process's name in it (null: not sharded).
+  std::unique_ptr<const ShardMap> shards;
+  std::string shard;
+  /// OK when this process may hold scene `id`: always unsharded; sharded,
+  /// when the map gives it to `shard`, else FAILED_PRECONDITION naming the owner.
+  grpc::Status CheckOwner(const std::string& id) const;
   ChangeSignal signal;
   SceneRegistry scenes{&signal};
   Stats stats;

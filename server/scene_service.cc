@@ -1,6 +1,7 @@
 #include <grpcpp/grpcpp.h>
 
 #include "proto/wire/ranges.h"
+#include "proto/wire/routing.h"
 #include "proto/wire/text.h"
 #include "server/convert.h"
 #include "server/observers.h"
@@ -344,6 +345,8 @@ grpc::Status ResolveScene(Core* core, const grpc::ServerContextBase& ctx, const 
   if (auto s = core->tokens.CheckAnyToken(ctx); !s.ok()) return s;
   // The id's syntax first: nothing longer than an id is echoed or looked up.
   if (auto s = ValidateId(id, "scene_id"); !s.ok()) return s;
+  // A call routed for one scene (its header) never acts on another.
+  if (auto s = wire::CheckSceneHeader(ctx, id); !s.ok()) return s;
   // Permission first: a caller without rights learns nothing about which scenes exist.
   if (auto s = core->tokens.Check(ctx, id, role); !s.ok()) return s;
   ScenePtr scene = core->scenes.Get(id);
@@ -402,6 +405,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerCont
     return Done(ctx, replay);
   auto run = [&]() -> grpc::Status {
     if (auto s = ValidateId(req->scene_id(), "scene_id"); !s.ok()) return s;
+    if (auto s = wire::CheckSceneHeader(*ctx, req->scene_id()); !s.ok()) return s;
     if (req->description().size() > 1024) {
       return InvalidArgument("description", "is longer than 1024 bytes");
     }
@@ -411,6 +415,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerCont
       return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, e);
     }
     if (auto s = core_->tokens.Check(*ctx, req->scene_id(), Role::kAdmin); !s.ok()) return s;
+    if (auto s = core_->CheckOwner(req->scene_id()); !s.ok()) return s;
     v1::SceneSummary answer;
     answer.set_scene_id(req->scene_id());
     answer.set_description(req->description());

@@ -1,5 +1,6 @@
 #include "server/server.h"
 
+#include <fmt/format.h>
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
@@ -12,6 +13,7 @@
 #include <set>
 #include <sstream>
 
+#include "proto/wire/text.h"
 #include "server/convert.h"
 #include "server/core.h"
 #include "server/observers.h"
@@ -136,7 +138,15 @@ std::set<std::string> HapticServer::Impl::RestoreState() {
   std::set<std::string> restored;
   std::size_t bodies = 0;
   const std::string file = core.store->db_path().string();
+  std::size_t skipped = 0;
   for (StoredScene& sc : st.scenes) {
+    if (auto s = core.CheckOwner(sc.id); !s.ok()) {
+      // Kept in the file, not served: the map gives it to another process.
+      Log()->warn("state directory {}: scene '{}' not served: {}", options.state_dir, sc.id,
+                  s.error_message());
+      ++skipped;
+      continue;
+    }
     ScenePtr scene;
     // The store wins over today's limits: what was acknowledged is served.
     auto s = core.scenes.Create(sc.id, sc.description, sc.config,
@@ -169,7 +179,7 @@ std::set<std::string> HapticServer::Impl::RestoreState() {
   core.requests = std::make_unique<RequestLog>(core.store.get());
   core.requests->Load(st.requests);
   Log()->info("state directory {}: {} scenes, {} bodies, {} request ids loaded in {:.0f} ms",
-              options.state_dir, st.scenes.size(), bodies, st.requests.size(),
+              options.state_dir, st.scenes.size() - skipped, bodies, st.requests.size(),
               std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
   return restored;
 }
@@ -208,6 +218,11 @@ void HapticServer::Impl::LoadSceneFile(const std::string& path,
   if (restored.count(f.scene_id)) {
     Log()->info("scene '{}' of {} not loaded: the state directory holds that scene", f.scene_id,
                 path);
+    return;
+  }
+  if (core.shards && core.shards->Owner(f.scene_id) != core.shard) {
+    Log()->info("scene '{}' of {} not loaded: shard '{}' does not own it", f.scene_id, path,
+                core.shard);
     return;
   }
   try {
@@ -293,6 +308,19 @@ void HapticServer::Start() {
   if (o.tls_cert.empty() != o.tls_key.empty()) {
     throw std::runtime_error("TLS needs both --tls-cert and --tls-key");
   }
+  if (o.shard_map_file.empty() != o.shard.empty()) {
+    throw std::runtime_error("sharding needs both --shard-map FILE and --shard NAME");
+  }
+  if (!o.shard_map_file.empty()) {
+    auto map = std::make_unique<ShardMap>(ShardMap::Load(o.shard_map_file));
+    if (!map->HasShard(o.shard)) {
+      throw ShardMapError(fmt::format("{}: no line names shard '{}' (--shard); it names: {}",
+                                      o.shard_map_file, wire::Printable(o.shard),
+                                      fmt::join(map->shards(), ", ")));
+    }
+    m.core.shards = std::move(map);
+    m.core.shard = o.shard;
+  }
   // Bound before the state is loaded, so that health checks see
   // NOT_SERVING (and every call UNAVAILABLE) until it is.
   m.core.loading.store(true);
@@ -358,7 +386,7 @@ void HapticServer::Start() {
       m.core.requests = std::make_unique<RequestLog>(nullptr);
     }
     for (const auto& f : o.scene_files) m.LoadSceneFile(f, restored);
-    if (o.scene_files.empty() && restored.empty()) {
+    if (o.scene_files.empty() && restored.empty() && !m.core.shards) {
       auto s =
           m.core.scenes.Create("default", "the default scene", m.core.limits.max_scenes, nullptr);
       if (!s.ok()) throw std::runtime_error(s.error_message());

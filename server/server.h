@@ -70,8 +70,15 @@ struct ServerOptions {
   std::string tls_cert;
   std::string tls_key;
   /// Scene files (JSON) preloaded at start; without any, one empty scene
-  /// named "default" is created.
+  /// named "default" is created (not when sharded).
   std::vector<std::string> scene_files;
+  /// Sharded (docker/README.md "Scaling out"): the shard map file
+  /// (server/shard_map.h) and this process's name in it; both or neither.
+  /// A sharded server creates, restores and preloads only the scenes the map
+  /// gives it (CreateScene of another's: FAILED_PRECONDITION naming the
+  /// owner) and has no "default" scene.
+  std::string shard_map_file;
+  std::string shard;
   Limits limits;
   /// State directory (server/README.md "State directory"): scenes, bodies,
   /// poses, materials, configs and request ids are kept in DIR/scenes.db and

@@ -17,6 +17,7 @@
 
 #include "pd/scene_pd.h"
 #include "proto/wire/ranges.h"
+#include "proto/wire/routing.h"
 #include "proto/wire/text.h"
 #include "server/convert.h"
 #include "server/scene_file.h"
@@ -354,8 +355,10 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     }
     ScenePtr scene;
     if (auto s = ResolveScene(core_, *ctx_, h.scene_id(), Role::kDevice, &scene); !s.ok()) {
-      if (s.error_code() == grpc::StatusCode::INVALID_ARGUMENT ||
-          s.error_code() == grpc::StatusCode::NOT_FOUND) {
+      // The field is in the hello, unless the routing header disagrees with it.
+      if ((s.error_code() == grpc::StatusCode::INVALID_ARGUMENT ||
+           s.error_code() == grpc::StatusCode::NOT_FOUND) &&
+          !s.error_message().starts_with(wire::kSceneHeader)) {
         return grpc::Status(s.error_code(), "hello." + s.error_message());
       }
       return s;

@@ -11,6 +11,7 @@
 #include "client/viewer/mesh_store.h"
 #include "client/viewer/scene_json.h"
 #include "hapticpd/v1/scene.grpc.pb.h"
+#include "proto/wire/routing.h"
 #include "server/server.h"
 
 namespace hapticpd::viewer {
@@ -176,6 +177,7 @@ struct Viewer::Impl {
       if (!opts.server_token.empty()) {
         call.AddMetadata("authorization", "Bearer " + opts.server_token);
       }
+      wire::AddSceneHeader(&call, opts.scene_id);
       {
         std::lock_guard lock(mu);
         if (stopping) return;
