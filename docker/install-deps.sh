@@ -16,6 +16,7 @@ PACKAGES=(
   clang libclang-rt-14-dev  # the `fuzz` preset: clang and its libFuzzer/ASan runtimes
   libboost-dev libjs-three  # `hapticpd view`: Boost.Beast (HTTP + WebSocket) and three.js for its page
   chromium-headless-shell   # tests/browser (label `browser`) and tests/bench/bench_view.mjs
+  haproxy                   # tests/scale (label `scale`): the balancer of docker/haproxy.cfg
 )
 
 # Node.js and npm for tests/browser (puppeteer-core, `npm ci` at build time):
