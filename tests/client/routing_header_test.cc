@@ -1,6 +1,6 @@
 // Every scene-scoped call our clients make carries `x-hapticpd-scene: ID`
 // (proto/wire/routing.h), the header a balancer routes on: the CLI's
-// commands (through popen) and the device Session, against a server that
+// commands (through popen, `view` included) and the device Session, against a server that
 // records each call's method and header and answers UNIMPLEMENTED.
 // ListScenes names no scene and carries none.
 #include <grpcpp/generic/async_generic_service.h>
@@ -108,6 +108,13 @@ TEST_F(RoutingHeader, CliSceneCallsNameTheirScene) {
   ExpectRouted(Cli("watch --scene lab-3"), "SceneService/Watch", "lab-3");
   ExpectRouted(Cli("observe --scene lab-3 --duration 1"), "SceneService/Watch", "lab-3");
   ExpectRouted(Cli("couple --scene lab-3 --duration 1"), "HapticService/Couple", "lab-3");
+  {
+    // The viewer retries its Watch until stopped (timeout sends SIGTERM).
+    const RunResult r = RunCli("view --scene lab-3 --listen 127.0.0.1:0 --server " +
+                               rec_.Address() + " & sleep 1.5; kill $!; wait");
+    (void)r;
+    ExpectRouted(rec_.Take(), "SceneService/Watch", "lab-3");
+  }
   const std::vector<Call> list = Cli("scene list");
   ASSERT_EQ(list.size(), 1u);
   EXPECT_EQ(list[0].method, "/hapticpd.v1.SceneService/ListScenes");
