@@ -133,5 +133,32 @@ TEST_F(RoutingHeader, DeviceSessionNamesItsScene) {
   ExpectRouted(rec_.Take(), "HapticService/Couple", "lab-7");
 }
 
+// `scene list --servers`: each process asked directly, each scene prefixed
+// by its server; a scene two servers hold and a server that cannot answer
+// fail the command after the listing.
+TEST(SceneListServers, ListsEachServerAndFindsCopies) {
+  auto a = StartServer("127.0.0.1:0");
+  auto b = StartServer("127.0.0.1:0");
+  const std::string A = "127.0.0.1:" + std::to_string(a->port());
+  const std::string B = "127.0.0.1:" + std::to_string(b->port());
+  // Both hold "default" (unsharded servers): a copy.
+  RunResult r = RunCli("scene list --servers " + A + "," + B);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.out.find(A + "  default  bodies 0"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(B + "  default  bodies 0"), std::string::npos) << r.out;
+  EXPECT_NE(r.err.find("scene 'default' is held by 2 servers: " + A + ", " + B), std::string::npos)
+      << r.err;
+  r = RunCli("scene list --servers " + A);
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.out,
+            A + "  default  bodies 0  sessions 0  observers 0  revision 0  the default scene\n");
+  b->Shutdown();
+  r = RunCli("scene list --timeout 2 --servers " + A + "," + B);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.out.find(A + "  default"), std::string::npos) << r.out;
+  EXPECT_NE(r.err.find(B + ": UNAVAILABLE"), std::string::npos) << r.err;
+  a->Shutdown();
+}
+
 }  // namespace
 }  // namespace hapticpd::testing::routing_header_tests
