@@ -11,6 +11,7 @@
 #include "hapticpd/v1/scene.grpc.pb.h"
 #include "pd/geometry_model.h"
 #include "proto/wire/convert.h"
+#include "proto/wire/routing.h"
 #include "proto/wire/scene_file.h"
 
 namespace hapticpd::viewer {
@@ -89,6 +90,7 @@ v1::Scene SceneFromServer(const std::filesystem::path& file, const ReplaySources
   if (!src.make_channel) Fail(file, "no channel to the server");
   grpc::ClientContext ctx;
   if (!src.server_token.empty()) ctx.AddMetadata("authorization", "Bearer " + src.server_token);
+  wire::AddSceneHeader(&ctx, scene_id);
   ctx.set_deadline(std::chrono::system_clock::now() +
                    std::chrono::milliseconds(static_cast<int>(1000 * src.timeout_s)));
   v1::GetSceneRequest req;
