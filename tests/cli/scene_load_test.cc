@@ -36,16 +36,6 @@ void ExpectOneLineError(const RunResult& r, const std::vector<std::string>& what
   }
 }
 
-std::vector<std::string> SceneIds(v1::SceneService::Stub& stub) {
-  v1::ListScenesResponse resp;
-  auto ctx = Ctx();
-  EXPECT_TRUE(stub.ListScenes(ctx.get(), {}, &resp).ok());
-  std::vector<std::string> ids;
-  for (const auto& s : resp.scenes()) ids.push_back(s.scene_id());
-  std::sort(ids.begin(), ids.end());
-  return ids;
-}
-
 class SceneLoadTest : public ::testing::Test {
  protected:
   void SetUp() override {

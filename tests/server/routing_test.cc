@@ -282,15 +282,6 @@ server::ServerOptions Sharded(const Folder& f, const std::string& shard) {
   return o;
 }
 
-std::vector<std::string> SceneIds(v1::SceneService::Stub& stub) {
-  v1::ListScenesResponse resp;
-  auto ctx = Ctx();
-  EXPECT_TRUE(stub.ListScenes(ctx.get(), {}, &resp).ok());
-  std::vector<std::string> ids;
-  for (const auto& s : resp.scenes()) ids.push_back(s.scene_id());
-  return ids;
-}
-
 TEST(Sharded, CreatesOnlyItsOwnScenesAndHasNoDefault) {
   Folder f;
   ServerHarness h(Transport::kInProcess, Sharded(f, "s1"));

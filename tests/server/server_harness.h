@@ -7,6 +7,7 @@
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <memory>
 #include <optional>
@@ -143,6 +144,17 @@ inline v1::Scene GetScene(v1::SceneService::Stub& stub, const std::string& scene
   const grpc::Status s = stub.GetScene(ctx.get(), req, &out);
   EXPECT_TRUE(s.ok()) << s.error_message();
   return out;
+}
+
+/// The ids of the scenes `stub`'s server holds, sorted.
+inline std::vector<std::string> SceneIds(v1::SceneService::Stub& stub) {
+  v1::ListScenesResponse resp;
+  auto ctx = Ctx();
+  EXPECT_TRUE(stub.ListScenes(ctx.get(), {}, &resp).ok());
+  std::vector<std::string> ids;
+  for (const auto& s : resp.scenes()) ids.push_back(s.scene_id());
+  std::sort(ids.begin(), ids.end());
+  return ids;
 }
 
 /// CreateScene for `scene`; the summary into `out` when given.
