@@ -184,11 +184,16 @@ async function benchPage(viewerExtra = []) {
         window.__bench.poses.set(v.lastPoseServerTimeNs, v.lastPoseRenderedAt);
       }
     };
-    window.__bench.timer = setInterval(tick, 5);
+    // Sampled once per animation frame, after the page's own frame callback
+    // (registered first): a timer every few milliseconds would itself wake
+    // the page's main thread hundreds of times a second.
+    const loop = () => { if (window.__bench.on) { tick(); requestAnimationFrame(loop); } };
+    window.__bench.on = true;
+    requestAnimationFrame(loop);
   });
   await sleep(FPS_S * 1000);  // the measurement window itself
   const got = await page.evaluate(() => {
-    clearInterval(window.__bench.timer);
+    window.__bench.on = false;
     return { frames: window.__bench.frames, poses: [...window.__bench.poses.entries()] };
   });
   const cal1 = await calibrate();
