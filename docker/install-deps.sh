@@ -17,6 +17,7 @@ PACKAGES=(
   libboost-dev libjs-three  # `hapticpd view`: Boost.Beast (HTTP + WebSocket) and three.js for its page
   chromium-headless-shell   # tests/browser (label `browser`) and tests/bench/bench_view.mjs
   haproxy                   # tests/scale (label `scale`): the balancer of docker/haproxy.cfg
+  docker-compose            # tests/deploy: `docker-compose config` of docker/compose.yaml (no engine)
 )
 
 # Node.js and npm for tests/browser (puppeteer-core, `npm ci` at build time):
