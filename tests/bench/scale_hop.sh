@@ -13,7 +13,9 @@
 #       30) through the balancer, one scene each, spread round-robin over the
 #       three shards (lab-capK, lab-vr-capK, train-capK); prints each session's
 #       updates/s and round trip p99 and PASS when every session keeps
-#       >= 950 updates/s with p99 <= 5 ms, else FAIL.
+#       >= 950 updates/s with p99 <= 5 ms, else FAIL. With DIRECT=1 the
+#       sessions connect to their scene's owner instead (no balancer hop),
+#       for comparison.
 #
 # Run from the repository root after `cmake --build --preset release`;
 # BUILD=build/release by default. Needs haproxy (docker/install-deps.sh) and
@@ -105,17 +107,20 @@ case $mode in
     n=${1:?capacity needs N}
     secs=${2:-30}
     prefixes=(lab-cap lab-vr-cap train-cap)  # hapticpd-1, -2, -3 (docker/shard-map.txt)
+    owners=(hapticpd-1 hapticpd-2 hapticpd-3)
     scenes=()
+    declare -A via=()
     for ((i = 0; i < n; i++)); do
       s=${prefixes[i % 3]}$i
       create "$s"
       "$cli" inject --server "$balancer" --scene "$s" --shape box:0.1,0.1,0.1 --id box \
         --pose 0,0,0 >/dev/null
       scenes+=("$s")
+      if [[ ${DIRECT:-0} == 1 ]]; then via[$s]=${addr[${owners[i % 3]}]}; else via[$s]=$balancer; fi
     done
     cpids=()
     for s in "${scenes[@]}"; do
-      "$cli" couple --server "$balancer" --scene "$s" --rate 1000 --duration "$secs" \
+      "$cli" couple --server "${via[$s]}" --scene "$s" --rate 1000 --duration "$secs" \
         --from 0,0,0.07 --to 0,0,0.04 >"$dir/couple-$s.log" 2>&1 &
       cpids+=($!)
       pids+=($!)
@@ -135,7 +140,8 @@ case $mode in
       [[ $verdict == ok ]] || ok=0
       echo "$s: $line [$verdict]"
     done
-    if ((ok)); then echo "N=$n ${secs}s: PASS"; else echo "N=$n ${secs}s: FAIL"; fi
+    path=$([[ ${DIRECT:-0} == 1 ]] && echo "direct to the owners" || echo "through HAProxy")
+    if ((ok)); then echo "N=$n ${secs}s $path: PASS"; else echo "N=$n ${secs}s $path: FAIL"; fi
     ;;
   *)
     echo "usage: scale_hop.sh hop [BENCH_RPC_ARGS...] | capacity N [SECONDS]" >&2
