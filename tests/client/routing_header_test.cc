@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "client/session.h"
+#include "server/core.h"
 #include "tests/cli_runner.h"
 #include "tests/client/session_rig.h"
 #include "tests/test_util.h"
@@ -55,9 +56,18 @@ class Recorder final : public grpc::CallbackGenericService {
       std::lock_guard lock(mu_);
       calls_.push_back(std::move(c));
     }
+    // Finish before the reactor is bound goes into gRPC's backlog, which the
+    // reactor's destructor frees on another gRPC thread; the hand-over tells
+    // TSan about the order gRPC's uninstrumented locks give it.
     struct Refuse final : grpc::ServerGenericBidiReactor {
-      Refuse() { Finish(grpc::Status(grpc::StatusCode::UNIMPLEMENTED, "recording only")); }
-      void OnDone() override { delete this; }
+      Refuse() {
+        Finish(grpc::Status(grpc::StatusCode::UNIMPLEMENTED, "recording only"));
+        server::internal::GrpcHandOff(this);
+      }
+      void OnDone() override {
+        server::internal::GrpcTakeOver(this);
+        delete this;
+      }
     };
     return new Refuse;
   }
