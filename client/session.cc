@@ -768,6 +768,8 @@ void Session::Serve(Stream& s, std::stop_token st) {
   connected_ = false;
   // The scene may change unseen while the stream is down.
   if (local_) local_->Reset();
+  // Nothing this stream brought is rendered any more: the fade starts now.
+  if (!st.stop_requested()) loop_->RequestLinkLost();
   if (st.stop_requested()) {
     s.rw->WritesDone();  // the server then ends the stream with OK
     // Bounded: cancel if the server does not finish promptly.

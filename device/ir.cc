@@ -98,6 +98,7 @@ void IrEvaluator::Reset() {
   shift_ = 0;
   ramp_recovery_ = true;
   unvisited_ = false;
+  expired_ = false;
 }
 
 void IrEvaluator::Accept(const IntermediateRep& ir, const Pose& X_WP) {
@@ -126,6 +127,7 @@ void IrEvaluator::Accept(const IntermediateRep& ir, const Pose& X_WP) {
   if (offset_.cwiseAbs().maxCoeff() < 1e-9) offset_.setZero();
   blend_tick_ = 0;
   has_ir_ = true;
+  expired_ = false;
 }
 
 void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, Vec6* W, Mat6* K,
@@ -141,7 +143,7 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
   info->have_ir = true;
   info->source = ir_.source;
   info->age_s = 1e-9 * static_cast<double>(now_ns - ir_.receive_time_ns);
-  info->stale = info->age_s > params_.max_age_s;
+  info->stale = expired_ || info->age_s > params_.max_age_s;
   info->outside_validity = !InsideValidity(ir_, X_WP);
   if (!info->outside_validity) unvisited_ = false;
   const double target = (info->stale || info->outside_validity) ? 0.0 : 1.0;

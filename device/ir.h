@@ -148,6 +148,9 @@ class IrEvaluator {
   void Reset();
   /// Installs a new IR (by copy); the next Evaluate blends it in.
   void Accept(const IntermediateRep& ir, const Pose& X_WP);
+  /// The IR held is stale from now on, whatever its age (its stream ended):
+  /// Evaluate fades it as it would an old one, until Accept or Reset.
+  void Expire() { expired_ = true; }
   /// Contact wrench on the proxy at X_WP at time now_ns, its stiffness K for
   /// the implicit step, and what happened. Advances blend and fade by `dt_s`.
   void Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, Vec6* W, Mat6* K,
@@ -167,6 +170,7 @@ class IrEvaluator {
   // The IR arrived with the proxy outside its validity region, and the proxy
   // has not been inside it since: its rows do not push.
   bool unvisited_ = false;
+  bool expired_ = false;  // see Expire()
   // The last fade-down was for a stale IR (or there was no IR yet): the
   // next rise is the plain recovery ramp.
   bool ramp_recovery_ = true;

@@ -293,6 +293,7 @@ void RecordingDevice::Save(const std::filesystem::path& path) const {
   if (!f) throw std::runtime_error(path.string() + ": cannot write trajectory file");
   std::fprintf(f, "%s\n# device: %s\n", kMagicV2, inner_->info().name.c_str());
   for (const auto& [k, v] : header_) std::fprintf(f, "# %s: %s\n", k.c_str(), v.c_str());
+  std::fprintf(f, "# start_ns: %lld\n", static_cast<long long>(t0_ns_));
   std::fprintf(f, "%s%s\n", kColumns, kColumnsV2Extra);
   // Samples past the last tick (the loop stopped between Read and OnTick)
   // are left out so that every line has both.

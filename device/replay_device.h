@@ -18,8 +18,10 @@
 // Version 2 ("hapticpd device trajectory v2", what `hapticpd device
 // --record` writes) adds what a replay needs to show the session
 // (`hapticpd view --replay`): `# key: value` header lines (device, scene,
-// server, probe, mode, X_WD and X_PA as "px py pz qw qx qy qz"; unknown
-// keys are kept and ignored) and, per tick, after the 21 columns above:
+// server, probe, mode, X_WD and X_PA as "px py pz qw qx qy qz"; start_ns,
+// the device clock's reading at t_s = 0 in ns, CLOCK_MONOTONIC for
+// `hapticpd device`, to line a recording up with other processes' events;
+// unknown keys are kept and ignored) and, per tick, after the 21 columns above:
 //
 //   ...,ax,ay,az,aqw,aqx,aqy,aqz,source,rows
 //

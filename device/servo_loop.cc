@@ -91,6 +91,7 @@ void ServoLoop::ResetContact() {
   engaged_ = false;
   quiet_count_ = 0;
   startup_gain_ = 0;
+  link_lost_ = false;
 }
 
 void ServoLoop::Tick(std::int64_t now_ns) {
@@ -136,11 +137,16 @@ void ServoLoop::Tick(std::int64_t now_ns) {
     proxy_init_ = true;
   }
 
-  if (reset_requested_.load(std::memory_order_relaxed) &&
-      reset_requested_.exchange(false, std::memory_order_acq_rel)) {
-    ResetContact();
+  if (link_request_.load(std::memory_order_relaxed) != kLinkNone) {
+    const int request = link_request_.exchange(kLinkNone, std::memory_order_acq_rel);
+    if (request == kLinkReset) {
+      ResetContact();
+    } else if (request == kLinkLost) {
+      eval_.Expire();
+      link_lost_ = true;
+    }
   }
-  if (ir_in_.Fetch()) {
+  if (ir_in_.Fetch() && !link_lost_) {
     eval_.Accept(ir_in_.front(), proxy_.X_WP);
     r.new_ir = true;
     ++stats_.ir_updates;

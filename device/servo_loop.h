@@ -198,7 +198,13 @@ class ServoLoop {
   void ResetContact();
   /// The same from any other thread (a Session on reconnect): the next tick
   /// calls ResetContact() before it takes a new IR. Wait-free.
-  void RequestResetContact() { reset_requested_.store(true, std::memory_order_release); }
+  void RequestResetContact() { link_request_.store(kLinkReset, std::memory_order_release); }
+  /// From any other thread (a Session whose stream has ended): the next tick
+  /// treats the IR it holds as stale at once (IrEvaluator::Expire), so the
+  /// link fade starts now rather than ir.max_age_s after the last answer,
+  /// and drops IRs still in flight until RequestResetContact() (a new
+  /// stream). Of the two, the later request wins. Wait-free.
+  void RequestLinkLost() { link_request_.store(kLinkLost, std::memory_order_release); }
 
  private:
   void Run(std::stop_token st);
@@ -230,7 +236,9 @@ class ServoLoop {
   bool engaged_ = false;
   std::jthread thread_;
   std::atomic<bool> got_rt_{false};
-  std::atomic<bool> reset_requested_{false};
+  static constexpr int kLinkNone = 0, kLinkReset = 1, kLinkLost = 2;
+  std::atomic<int> link_request_{kLinkNone};
+  bool link_lost_ = false;  // RequestLinkLost() taken, no reset since
 };
 
 }  // namespace hapticpd::device

@@ -1,6 +1,6 @@
 // The servo loop closed through the simulated hand and an in-process PDt
 // source, in simulated time: press, slide, plate, closed-loop energy, a
-// stalled IR stream, the start-up ramp, no allocation in the tick, and the
+// stalled IR stream, an ended stream, the start-up ramp, no allocation in the tick, and the
 // recorder / replay round trip.
 #include "device/servo_loop.h"
 
@@ -168,6 +168,38 @@ TEST(Servo, StalledIrStreamFadesAndRecovers) {
   EXPECT_GT(rig.loop->stats().stale_ticks, 100u);
 }
 
+TEST(Servo, EndedStreamFadesAtOnceAndDropsLateIrs) {
+  // The session says its stream ended (RequestLinkLost) while the PD source
+  // still delivers fresh IRs, as a last answer or a local model's might: the
+  // output fades over link_fade_time_s from the next tick, without waiting
+  // for the IR to age, and nothing arriving later is rendered until a reset
+  // (a new stream).
+  ScriptParams sp = Script(HandScript::kPress, 4);
+  Rig rig(sp, CubeProbe(), BoxScene());
+  double before = 0, at_21ms = 1e9, max_after = 0;
+  int late_irs = 0, fresh_after_reset = 0;
+  rig.Run(2.2, [&](const TickRecord& r) {
+    const double t = rig.time_s(), f = r.F_cmd_W.force.norm();
+    if (std::abs(t - 1.85) < 5e-4) {
+      before = f;
+      rig.loop->RequestLinkLost();
+    }
+    if (std::abs(t - 1.872) < 5e-4) at_21ms = f;
+    if (t > 1.872 && t < 2.0) {
+      max_after = std::max(max_after, f);
+      if (r.new_ir) ++late_irs;
+      EXPECT_TRUE(r.ir.stale) << "t=" << t;
+    }
+    if (std::abs(t - 2.0) < 5e-4) rig.loop->RequestResetContact();
+    if (t > 2.01 && r.new_ir && !r.ir.stale) ++fresh_after_reset;
+  });
+  EXPECT_GT(before, 2.0);
+  EXPECT_LT(at_21ms, 1e-3);
+  EXPECT_LT(max_after, 1e-3);
+  EXPECT_EQ(late_irs, 0);
+  EXPECT_GT(fresh_after_reset, 50);
+}
+
 TEST(Servo, StartupWaitsForQuietThenRamps) {
   // Start with the handle 5 mm inside the box: the proxy is put at the
   // handle and pushed out, and nothing is sent until things are quiet.
@@ -270,6 +302,7 @@ TEST(Recorder, VersionTwoKeepsTheProxyAndItsContactRows) {
   EXPECT_EQ(r.Header("scene"), "default");
   EXPECT_EQ(r.Header("probe"), "shape:stick");
   EXPECT_LT(ParsePoseValue(r.Header("X_WD")).t.norm(), 1e-12);
+  EXPECT_EQ(r.Header("start_ns"), "1000000");  // the clock at the first tick (t_s = 0)
   ASSERT_EQ(r.samples.size(), 100u);
   ASSERT_EQ(r.ticks.size(), 100u);
   EXPECT_EQ(r.ticks[10].num_rows, 0);
