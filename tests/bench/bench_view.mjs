@@ -17,7 +17,7 @@
 // Usage (from the repository root, after building the release preset's
 // hapticpd and browser_node_modules targets):
 //   node tests/bench/bench_view.mjs [--run-s 5] [--pairs 5] [--fps-s 10] [--clients 8]
-//                                   [--no-full] [--no-readme] [--json]
+//                                   [--no-full] [--no-readme] [--json] [--trace FILE]
 // It prints the load average at its start and the table, and writes the
 // table into tests/bench/README.md between the bench_view markers.
 import fs from 'node:fs';
@@ -37,6 +37,7 @@ const PAIRS = opt('--pairs', 5);
 const FPS_S = opt('--fps-s', 10);
 const CLIENTS = opt('--clients', 8);
 const WRITE_README = !args.includes('--no-readme');
+const TRACE = args.includes('--trace') ? args[args.indexOf('--trace') + 1] : null;
 const here = path.dirname(fileURLToPath(import.meta.url));
 const README = path.join(here, 'README.md');
 
@@ -154,6 +155,12 @@ async function benchPage(viewerExtra = []) {
   await waitView(page, () => __count(window.hapticpdView.bodies) === 2, { timeoutMs: 60000,
                  what: 'the bunny scene shown' });
 
+  // --trace FILE: a DevTools trace from the session's start to the end of
+  // the window (chrome://tracing or the DevTools Performance panel read it).
+  if (TRACE && viewerExtra.length === 0) {
+    await page.tracing.start({ path: TRACE, categories: ['devtools.timeline', 'v8', 'gpu',
+      'disabled-by-default-devtools.timeline', 'toplevel', 'blink', 'cc', 'viz'] });
+  }
   // The demo's kind of session: a stick sliding over the bunny's back (local model on).
   const session = server.device('bunny', { script: 'slide', duration: FPS_S + 8,
                                            extra: ['--travel', '0.03'] });
@@ -194,8 +201,12 @@ async function benchPage(viewerExtra = []) {
   await sleep(FPS_S * 1000);  // the measurement window itself
   const got = await page.evaluate(() => {
     window.__bench.on = false;
+    // The window ends now, not at the last frame: a page frozen at the end
+    // of it counts.
+    window.__bench.frames.push([performance.now(), window.hapticpdView.framesRendered]);
     return { frames: window.__bench.frames, poses: [...window.__bench.poses.entries()] };
   });
+  if (TRACE && viewerExtra.length === 0) await page.tracing.stop();
   const cal1 = await calibrate();
   const state = await page.evaluate(() => ({ probes: Object.keys(window.hapticpdView.probes).length,
                                              bodies: window.hapticpdView.bodies }));
@@ -218,7 +229,7 @@ async function benchPage(viewerExtra = []) {
   // The longest time without a new frame, and when (s into the window).
   let gap = 0, gapAt = 0;
   for (let i = 1, last = 0; i < f.length; i++) {
-    if (f[i][1] === f[i - 1][1]) continue;
+    if (f[i][1] === f[i - 1][1] && i < f.length - 1) continue;  // the window's end counts
     const g = f[i][0] - f[last][0];
     if (g > gap) { gap = g; gapAt = (f[last][0] - f[0][0]) / 1000; }
     last = i;

@@ -1,6 +1,7 @@
 // (a) A page against a running server with a simulated device session
 // pressing a stick into a box: the page shows every body, the probe moves,
-// contacts appear while pressing, the force plot has samples. Writes a
+// contacts appear while pressing, the force plot has samples, and no
+// shader program is built after load. Writes a
 // screenshot (HAPTICPD_SCREENSHOT, build/viewer-screenshot.png).
 import fs from 'node:fs';
 import path from 'node:path';
@@ -32,12 +33,18 @@ runTest('view_live', async (ctx) => {
   check(h.server_connected === true && h.scene_id === 'live' && h.browsers >= 1,
         `/healthz ${JSON.stringify(h)}: server_connected, scene_id live, >= 1 browser`);
 
+  // The page built every shader program it needs at load: a session's
+  // probe, ghost, arrows and contacts, when they come, build none (in
+  // software WebGL a build froze the page for about a second).
+  const programs0 = await page.evaluate(() => window.hapticpdView.programs);
+  check(programs0 > 0, `the page reports the programs it built (${programs0})`);
+
   // What the page shows, recorded in the page every 10 ms from now on, so
   // that nothing transient (the contact lasts about a second) is missed
   // between two polls of this process.
   await page.evaluate(() => {
     const r = window.__rec = { probes: 0, sessions: 0, lo: null, hi: null, contacts: 0, rows: 0,
-                               depth: 0, plot: 0 };
+                               depth: 0, plot: 0, programs: 0 };
     setInterval(() => {
       const v = window.hapticpdView;
       const ps = Object.values(v.probes || {});
@@ -52,6 +59,7 @@ runTest('view_live', async (ctx) => {
       }
       r.contacts = Math.max(r.contacts, __count(v.contacts));
       r.plot = Math.max(r.plot, __count(v.plotSamples));
+      r.programs = Math.max(r.programs, v.programs);
     }, 10);
   });
 
@@ -93,7 +101,10 @@ runTest('view_live', async (ctx) => {
   const frames0 = await page.evaluate(() => window.hapticpdView.framesRendered);
   await waitView(page, (f0) => window.hapticpdView.framesRendered > f0 + 5,
                  { arg: frames0, what: 'the page drawing frames' });
-  console.log(`recorded: ${JSON.stringify(await page.evaluate(() => window.__rec))}`);
+  const rec = await page.evaluate(() => window.__rec);
+  console.log(`recorded: ${JSON.stringify(rec)}`);
+  check(rec.programs === programs0,
+        `no shader program built after load: ${programs0} at load, ${rec.programs} with the session`);
 
   const { code, json } = await device.result;
   check(code === 0 && json, `the device session ended cleanly (exit ${code})`);

@@ -13,6 +13,7 @@ const view = window.hapticpdView = {
   ready: false, connected: false, serverConnected: false,
   bodies: 0, bodyIds: [], sessions: 0, probes: {}, contacts: 0, plotSamples: 0,
   framesRendered: 0, wsConnects: 0, revision: 0, observers: 0,
+  programs: 0,  // shader programs built (warmUp builds every kind before a session comes)
   lastPoseServerTimeNs: 0, lastPoseRenderedAt: 0,
   // Beyond the contract: what this browser lost, and the link's error.
   posesDropped: 0, batchesDropped: 0, serverFramesDropped: 0, serverBatchesDropped: 0,
@@ -115,6 +116,24 @@ function boxGeometry(info) {
   return g;
 }
 
+// ------------------------------------------------------------- materials --
+// Every material the page draws comes from here, so that warmUp() below
+// draws each kind once at load.
+// Lit per vertex: software WebGL draws it at a fraction of Phong's cost.
+const bodyMaterial = (color) => new THREE.MeshLambertMaterial({ color });
+const placeholderMaterial = (color) => new THREE.MeshBasicMaterial({ color, wireframe: true });
+const probeMaterial = (color) => new THREE.MeshPhongMaterial({ color, shininess: 40 });
+const ghostMaterial = () => new THREE.MeshBasicMaterial({ color: 0x7fd7ff, transparent: true,
+                                                          opacity: 0.25, depthWrite: false });
+/// A force or torque arrow, drawn over the bodies: it starts inside the
+/// probe, often inside a body.
+function makeArrow(color) {
+  const a = new THREE.ArrowHelper(new THREE.Vector3(0, 0, 1), new THREE.Vector3(), 0.01, color);
+  a.visible = false;
+  for (const part of [a.line, a.cone]) { part.material.depthTest = false; part.renderOrder = 3; }
+  return a;
+}
+
 // ---------------------------------------------------------------- bodies --
 const bodies = new Map();  // id -> {obj, mesh, hash, info}
 const bodyPalette = [0x8c9bab, 0xb0a48c, 0x8cab97, 0xab8ca4, 0x9c8cab];
@@ -124,10 +143,8 @@ function addBody(b) {
   removeBody(b.id);
   const obj = new THREE.Group();
   const color = bodyPalette[bodies.size % bodyPalette.length];
-  // Lit per vertex: software WebGL draws it at a fraction of Phong's cost.
-  const mat = new THREE.MeshLambertMaterial({ color });
-  const placeholder = new THREE.Mesh(boxGeometry(b.info),
-    new THREE.MeshBasicMaterial({ color, wireframe: true }));
+  const mat = bodyMaterial(color);
+  const placeholder = new THREE.Mesh(boxGeometry(b.info), placeholderMaterial(color));
   obj.add(placeholder);
   setPose(obj, b.pose);
   scene.add(obj);
@@ -188,22 +205,16 @@ class Session {
     this.status = null;   // the latest device telemetry
     this.server = null;   // the latest server-side telemetry figures
     this.obj = new THREE.Group();
-    this.mat = new THREE.MeshPhongMaterial({ color: neutralProbe.clone(), shininess: 40 });
-    this.ghostMat = new THREE.MeshBasicMaterial({ color: 0x7fd7ff, transparent: true, opacity: 0.25,
-                                                  depthWrite: false });
+    this.mat = probeMaterial(neutralProbe.clone());
+    this.ghostMat = ghostMaterial();
     this.body = new THREE.Mesh(new THREE.SphereBufferGeometry(0.004, 16, 12), this.mat);
     this.obj.add(this.body);
     this.ghost = new THREE.Group();
     this.ghostMesh = new THREE.Mesh(this.body.geometry, this.ghostMat);
     this.ghost.add(this.ghostMesh);
     this.ghost.visible = false;
-    this.forceArrow = new THREE.ArrowHelper(new THREE.Vector3(0, 0, 1), new THREE.Vector3(), 0.01, 0xff5a3c);
-    this.torqueArrow = new THREE.ArrowHelper(new THREE.Vector3(0, 0, 1), new THREE.Vector3(), 0.01, 0xc266ff);
-    for (const a of [this.forceArrow, this.torqueArrow]) {
-      a.visible = false;
-      // Drawn over the bodies: the arrow starts inside the probe, often inside a body.
-      for (const part of [a.line, a.cone]) { part.material.depthTest = false; part.renderOrder = 3; }
-    }
+    this.forceArrow = makeArrow(0xff5a3c);
+    this.torqueArrow = makeArrow(0xc266ff);
     scene.add(this.obj, this.ghost, this.forceArrow, this.torqueArrow);
     this.obj.visible = false;  // until its first pose
     this.makePanel();
@@ -521,6 +532,44 @@ function updatePanels() {
   }
 }
 
+// ------------------------------------------------------------- warm-up --
+// Software WebGL (SwiftShader, what a headless or GPU-less browser has)
+// builds a program, and its routines for each draw state, at the first draw
+// that needs them: drawn on demand, the first session froze the page for
+// about a second as its probe, ghost and arrows appeared, and again at its
+// first contact. So the first frame also draws one object of each kind
+// (the materials above, the contact points and normals), behind the camera
+// where nothing of them shows; they stay in the scene, hidden, so that
+// their programs stay built for the sessions that come.
+const warmUpGroup = new THREE.Group();
+function warmUp() {
+  const tri = new THREE.BufferGeometry();
+  tri.setAttribute('position', new THREE.BufferAttribute(new Float32Array([0, 0, 0, 1e-4, 0, 0, 0, 1e-4, 0]), 3));
+  tri.computeVertexNormals();
+  warmUpGroup.add(new THREE.Mesh(tri, bodyMaterial(0xffffff)),
+                  new THREE.Mesh(tri, placeholderMaterial(0xffffff)),
+                  new THREE.Mesh(tri, probeMaterial(0xffffff)),
+                  new THREE.Mesh(tri, ghostMaterial()));
+  const arrow = makeArrow(0xffffff);
+  arrow.visible = true;
+  warmUpGroup.add(arrow);
+  // Behind the camera, looking at its target: clipped, but drawn.
+  const behind = camera.position.clone().multiplyScalar(2).sub(controls.target);
+  warmUpGroup.position.copy(behind);
+  warmUpGroup.traverse((o) => { o.frustumCulled = false; });
+  scene.add(warmUpGroup);
+  contactPoints.attributes.position.array.set(behind.toArray());
+  contactNormals.attributes.position.array.set([...behind.toArray(), ...behind.toArray()]);
+  contactPoints.setDrawRange(0, 1);
+  contactNormals.setDrawRange(0, 2);
+  contactPoints.attributes.position.needsUpdate = contactNormals.attributes.position.needsUpdate = true;
+  renderer.render(scene, camera);
+  warmUpGroup.visible = false;
+  contactPoints.setDrawRange(0, 0);
+  contactNormals.setDrawRange(0, 0);
+}
+warmUp();
+
 // ---------------------------------------------------------------- loop --
 let lastPanels = 0, lastPlots = 0;
 function frame() {
@@ -529,6 +578,7 @@ function frame() {
   renderer.render(scene, camera);
   const now = performance.now();
   ++view.framesRendered;
+  view.programs = renderer.info.programs.length;
   if (poseApplied !== null) {
     view.lastPoseServerTimeNs = poseApplied;
     view.lastPoseRenderedAt = now;
