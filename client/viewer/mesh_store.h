@@ -30,6 +30,11 @@ std::string ContentHash(std::string_view blob);
 /// Whether `text` has the form ContentHash returns.
 bool IsContentHash(std::string_view text);
 
+/// The viewer's default limit for SimplifyForDisplay (--display-triangles):
+/// what software WebGL draws at 30 frames/s or more beside a device session
+/// on two cores (tests/bench/README.md "Viewer").
+inline constexpr std::size_t kDefaultDisplayTriangles = 5000;
+
 /// A mesh of at most `max_triangles` triangles that looks like `mesh` from
 /// a viewer's distance, for drawing in software WebGL: vertices are merged
 /// on a grid (vertex clustering, each cell's vertices replaced by their

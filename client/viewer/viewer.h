@@ -12,13 +12,10 @@
 #include <string>
 
 #include "client/viewer/http_server.h"
+#include "client/viewer/mesh_store.h"
 #include "client/viewer/replay.h"
 
 namespace hapticpd::viewer {
-
-/// What software WebGL draws at 30 frames/s or more beside a device session
-/// on two cores (tests/bench/README.md "Viewer").
-inline constexpr std::size_t kDefaultDisplayTriangles = 10000;
 
 struct ViewerOptions {
   HttpOptions http;
