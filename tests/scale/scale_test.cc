@@ -209,9 +209,10 @@ std::vector<TelemetryLine> ParseTelemetry(const std::string& log) {
   return out;
 }
 
-double Median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v.empty() ? 0 : v[v.size() / 2];
+double Mean(const std::vector<double>& v) {
+  double sum = 0;
+  for (double x : v) sum += x;
+  return v.empty() ? 0 : sum / static_cast<double>(v.size());
 }
 
 std::string ReadText(const fs::path& p) {
@@ -350,6 +351,8 @@ class Scale : public ::testing::Test {
   std::map<std::string, std::unique_ptr<Process>> observers_;
 };
 
+constexpr char kSessionRate[] = "500";  // updates/s (device --max-rate)
+
 TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
   for (int i = 1; i <= 3; ++i) ASSERT_NO_FATAL_FAILURE(StartServer(Name(i)));
   ASSERT_NO_FATAL_FAILURE(StartBalancer());
@@ -382,11 +385,15 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
   // A 1 kHz device session on a scene of each process, through the balancer,
   // pressing a stick into a box (`device --simulated press`), and an
   // observer of each scene's relayed telemetry. hapticpd-2's session runs on
-  // past its server's restart, with its local model on: geometry it holds
-  // must not keep pushing once the server is gone. The survivors render the
-  // server's answers only, so that three servers, three 1 kHz loops, three
-  // observers and HAProxy leave this 2-core machine some headroom, and the
-  // CPU the dead pair frees does not show up as a change of their rate.
+  // past its server's restart. The loops run at 1 kHz; each asks for at
+  // most kSessionRate server answers and renders them without the local
+  // model: three servers, three loops, three observers and HAProxy
+  // saturate this 2-core machine otherwise (a survivor's update rate then
+  // swung 750-1000/s from second to second, and lower while the dying pair
+  // lived), and the rate would measure the CPU the dead pair frees, not the
+  // sessions' independence. (The fade with the local model on is
+  // Servo.EndedStreamFadesAtOnceAndDropsLateIrs and
+  // LocalModelE2e.ServerLossDropsThePatchAndReconnectBringsItBack.)
   const std::map<std::string, std::string> coupled = {
       {"hapticpd-1", "lab-0"}, {"hapticpd-2", "lab-vr-0"}, {"hapticpd-3", "train-0"}};
   std::map<std::string, Clock::time_point> observed_from;
@@ -397,9 +404,10 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
     const bool dies = name == "hapticpd-2";
     devices_[name] = std::make_unique<Process>(
         std::vector<std::string>{HAPTICPD_CLI_PATH, "device", "--server", Balancer(), "--scene",
-                                 scene, "--probe", "shape:stick", "--local-model",
-                                 dies ? "on" : "off", "--simulated", "press", "--duration",
-                                 dies ? "28" : "20", "--json", "--record",
+                                 scene, "--probe", "shape:stick", "--local-model", "off",
+                                 "--max-rate", kSessionRate,
+                                 "--simulated", "press", "--duration", dies ? "28" : "20",
+                                 "--json", "--record",
                                  (dir_ / ("device-" + name + ".csv")).string()},
         dir_ / ("device-" + name + ".log"));
     observed_from[name] = Clock::now();
@@ -479,7 +487,7 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
       << "hapticpd-2's session did not reconnect after the restart: "
       << stats["hapticpd-2"].dump();
 
-  // The other processes' sessions went on at their rate: the median of the
+  // The other processes' sessions went on at their rate: the mean of the
   // update rates their observers saw over the 3 s before the kill and over
   // the 3 s from 1 s into the quiet window after it differ by less than 5 %.
   for (const std::string name : {"hapticpd-1", "hapticpd-3"}) {
@@ -493,9 +501,9 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
     }
     ASSERT_GE(before.size(), 2u) << observers_[name]->Log();
     ASSERT_GE(after.size(), 2u) << observers_[name]->Log();
-    const double b = Median(before), a = Median(after);
-    std::cout << name << ": median updates/s " << b << " before the kill, " << a << " after\n";
-    EXPECT_GT(b, 900) << name << ": " << observers_[name]->Log();
+    const double b = Mean(before), a = Mean(after);
+    std::cout << name << ": mean updates/s " << b << " before the kill, " << a << " after\n";
+    EXPECT_GT(b, 0.9 * std::stod(kSessionRate)) << name << ": " << observers_[name]->Log();
     EXPECT_LT(std::abs(a / b - 1), 0.05)
         << name << ": " << b << " updates/s before the kill, " << a << " after\n"
         << observers_[name]->Log();
