@@ -20,10 +20,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <iostream>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <map>
 #include <set>
 #include <sstream>
@@ -405,9 +405,8 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
     devices_[name] = std::make_unique<Process>(
         std::vector<std::string>{HAPTICPD_CLI_PATH, "device", "--server", Balancer(), "--scene",
                                  scene, "--probe", "shape:stick", "--local-model", "off",
-                                 "--max-rate", kSessionRate,
-                                 "--simulated", "press", "--duration", dies ? "28" : "20",
-                                 "--json", "--record",
+                                 "--max-rate", kSessionRate, "--simulated", "press", "--duration",
+                                 dies ? "28" : "20", "--json", "--record",
                                  (dir_ / ("device-" + name + ".csv")).string()},
         dir_ / ("device-" + name + ".log"));
     observed_from[name] = Clock::now();
@@ -484,8 +483,7 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
   EXPECT_EQ(stats["hapticpd-3"]["disconnects"], 0) << stats["hapticpd-3"].dump();
   EXPECT_GE(stats["hapticpd-2"]["disconnects"].get<int>(), 1) << stats["hapticpd-2"].dump();
   EXPECT_GE(stats["hapticpd-2"]["connects"].get<int>(), 2)
-      << "hapticpd-2's session did not reconnect after the restart: "
-      << stats["hapticpd-2"].dump();
+      << "hapticpd-2's session did not reconnect after the restart: " << stats["hapticpd-2"].dump();
 
   // The other processes' sessions went on at their rate: the mean of the
   // update rates their observers saw over the 3 s before the kill and over
