@@ -163,6 +163,8 @@ struct ColdCmdOptions {
   bool procedural = false;
   std::string out = "hapticpd-bench-cold";
   std::string write_reference;
+  std::string poses_from;
+  int cold_seeds = pd::PenetrationRequest{}.cold_start_seeds;
   int poses = 16;
   std::uint64_t seed = 1;
 };
@@ -178,14 +180,23 @@ void RunColdCmd(const ColdCmdOptions& o) {
   c.procedural_only = o.procedural;
   c.poses = o.poses;
   c.seed = o.seed;
+  c.poses_from = o.poses_from;
+  c.cold_seeds = o.cold_seeds;
   MakeOutputFolder("cold", "--out", o.out);
   const std::filesystem::path out(o.out);
   std::ostream& notes = o.json ? std::cerr : std::cout;
-  const bench::ColdReport report = bench::RunCold(c, &notes);
+  bench::ColdReport report;
+  try {
+    report = bench::RunCold(c, &notes);
+  } catch (const std::runtime_error& e) {
+    throw CommandError(std::string("bench cold: ") + e.what());
+  }
   std::string command = "hapticpd bench cold --poses " + std::to_string(o.poses) + " --seed " +
                         std::to_string(o.seed);
   if (o.procedural) command += " --procedural";
   if (o.models_given) command += " --models " + o.models;
+  if (!o.poses_from.empty()) command += " --poses-from " + o.poses_from;
+  command += " --cold-seeds " + std::to_string(o.cold_seeds);
   const std::string date = UtcNow();
   const std::filesystem::path svg = out / "cold.svg";
   try {
@@ -393,6 +404,16 @@ void RegisterBench(CLI::App& app) {
     cmd->add_option("--write-reference", o->write_reference,
                     "Also write the poses and their reference bounds as JSON (tests/data/cold/)")
         ->type_name("FILE");
+    cmd->add_option("--poses-from", o->poses_from,
+                    "Query a stored pose set (written by --write-reference) instead of drawing "
+                    "poses: its reference bounds are reused, so the run takes seconds")
+        ->type_name("FILE")
+        ->check(CLI::ExistingFile);
+    cmd->add_option("--cold-seeds", o->cold_seeds,
+                    "Cold-start contacts refined per query, the shallowest answer kept "
+                    "(PenetrationRequest::cold_start_seeds)")
+        ->check(CLI::Range(1, 13))
+        ->capture_default_str();
     cmd->callback([o] { RunColdCmd(*o); });
   }
   {

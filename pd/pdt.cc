@@ -182,6 +182,9 @@ using Clock = std::chrono::steady_clock;
 
 Pose Shifted(const Pose& X, const Vec3& x) { return Pose{X.R, X.t + x}; }
 
+// Cold start: the least angle between the directions of two seeds refined.
+constexpr double kColdSeedSpread = 0.2;  // radians
+
 struct PdtContext {
   const GeometryModel& A;
   const Pose& X_WA;
@@ -193,6 +196,8 @@ struct PdtContext {
   int collision_queries = 0;
   int ccd_queries = 0;
 };
+
+double Size(const PdtContext& c) { return std::min(c.A.mesh().size(), c.B.mesh().size()); }
 
 bool Colliding(PdtContext& c, const Vec3& x) {
   CollisionRequest req;
@@ -334,6 +339,173 @@ void BuildPlanes(const std::vector<FeaturePair>& features, const Vec3& x_c,
   }
 }
 
+// The 13 fixed escape directions of the plain cold start: the centroid
+// direction and both bodies' principal axes.
+std::array<Vec3, 13> FixedColdDirections(const PdtContext& c, double size) {
+  Vec3 u0 = c.X_WA * c.A.mass().p_MC - c.X_WB * c.B.mesh().bounds().Center();
+  u0 = u0.norm() < 1e-12 * size ? Vec3(Vec3::UnitZ()) : Vec3(u0.normalized());
+  std::array<Vec3, 13> dirs;
+  dirs[0] = u0;
+  for (int k = 0; k < 3; ++k) {
+    dirs[1 + 2 * k] = c.X_WB.R * c.B.mass().X_MB.R.col(k);
+    dirs[2 + 2 * k] = -dirs[1 + 2 * k];
+    dirs[7 + 2 * k] = c.X_WA.R * c.A.mass().X_MB.R.col(k);
+    dirs[8 + 2 * k] = -dirs[7 + 2 * k];
+  }
+  return dirs;
+}
+
+// Cold start on general meshes: out-projections along the centroid
+// direction and both bodies' principal axes. Every contact reached is a
+// seed; the shallowest request.cold_start_seeds of them whose directions are
+// at least kColdSeedSpread apart come first in data.cold_seeds, shallowest
+// first, and PdtCore refines each.
+void ColdStart(PdtContext& c, Vec3* best, bool* have_best) {
+  PdQueryData& d = c.data;
+  const std::array<Vec3, 13> fixed = FixedColdDirections(c, Size(c));
+  const int count = c.request.cold_start_directions <= 1 ? 1 : 13;
+  d.cold_seeds_found = 0;
+  for (int k = 0; k < count; ++k) {
+    Vec3 x_c;
+    if (!Sweep(c, OutsideAlong(c, fixed[k]), Vec3::Zero(), &x_c)) continue;
+    if (d.cold_seeds.size() <= static_cast<std::size_t>(d.cold_seeds_found))
+      d.cold_seeds.emplace_back();
+    PdQueryData::ColdSeed& seed = d.cold_seeds[d.cold_seeds_found++];
+    seed.x = x_c;
+    seed.features = d.ccd.features;
+  }
+  std::sort(d.cold_seeds.begin(), d.cold_seeds.begin() + d.cold_seeds_found,
+            [](const PdQueryData::ColdSeed& x, const PdQueryData::ColdSeed& y) {
+              return x.x.squaredNorm() < y.x.squaredNorm();
+            });
+  // The shallowest seeds of distinct directions, in order.
+  const double cos_spread = std::cos(kColdSeedSpread);
+  const int wanted = std::max(1, c.request.cold_start_seeds);
+  d.cold_seeds_used = 0;
+  for (int k = 0; k < d.cold_seeds_found && d.cold_seeds_used < wanted; ++k) {
+    const Vec3 u = d.cold_seeds[k].x.normalized();
+    bool near = false;
+    for (int j = 0; j < d.cold_seeds_used; ++j) {
+      near = near || d.cold_seeds[j].x.normalized().dot(u) > cos_spread;
+    }
+    if (!near) std::swap(d.cold_seeds[d.cold_seeds_used++], d.cold_seeds[k]);
+  }
+  if (d.cold_seeds_used == 0) return;
+  *best = d.cold_seeds[0].x;
+  *have_best = true;
+  d.best_features.swap(d.cold_seeds[0].features);
+}
+
+// Steps 2-5 from the contact `*best_io` (its features in
+// data.best_features), then the final check; leaves the answer in *best_io
+// and its features in data.best_features.
+PdStatus Refine(PdtContext& c, Vec3* best_io, int* iterations) {
+  Vec3& best = *best_io;
+  // 2-5. Iterate: local contact space, in-projection, classification.
+  PdStatus status = PdStatus::kPenetratingCapReached;
+  c.data.carried_planes.clear();
+  for (int it = 0; it < c.request.max_iterations; ++it) {
+    *iterations = it + 1;
+    BuildPlanes(c.data.best_features, best, &c.data.planes);
+    if (c.data.planes.empty()) {
+      status = PdStatus::kPenetratingSolved;
+      break;
+    }
+    // After a blocked step, the planes we were sliding along still bound
+    // the free space (we moved from them into free space until something
+    // else blocked us): together they describe the crevice, which one set
+    // alone would zig-zag in.
+    for (const ContactPlane& q : c.data.carried_planes) AddPlane(q, &c.data.planes);
+    Vec3 x_star;
+    SolveMinNormQp(c.data.planes, best, &x_star);
+    const double best_norm = best.norm();
+    const double target = best_norm * (1 - c.request.improvement_tolerance) - 0.1 * c.eps;
+    Vec3 x_new;
+    bool improved = false;
+    bool blocked = false;
+    if (x_star.norm() < target) {
+      // Slide from the best contact (backed off to its free side) towards
+      // x*. Blocked on the way: that contact is the candidate (x* itself
+      // collides, as it does most of the time on curved or crowded
+      // surfaces). Not blocked: x* is free, and the out-projection from it
+      // towards the query pose is the candidate.
+      Vec3 n_avg = Vec3::Zero();
+      for (const FeaturePair& f : c.data.best_features) n_avg += f.n_W;
+      n_avg = n_avg.norm() > 1e-12 ? n_avg.normalized() : best.normalized();
+      SweepOutcome back = SweepFrom(c, best + n_avg * (2 * c.eps), x_star, &x_new, true);
+      if (back == SweepOutcome::kStartColliding) {
+        back = SweepFrom(c, best + best.normalized() * (2 * c.eps), x_star, &x_new, true);
+      }
+      if (back == SweepOutcome::kHit && x_new.norm() < target) {
+        improved = true;
+        c.data.carried_planes.swap(c.data.planes);
+        blocked = true;
+      } else if (SweepFrom(c, x_star, Vec3::Zero(), &x_new, back != SweepOutcome::kMiss) ==
+                 SweepOutcome::kHit) {
+        // (toi = 0 means x* itself is a contact; its features still refine
+        // the local contact space on the next iteration.)
+        improved = x_new.norm() < best_norm;
+      }
+    }
+    if (!blocked) c.data.carried_planes.clear();
+    // x* satisfies every local plane at once: exact where the free space is
+    // locally their intersection (a crevice). At a convex ridge or corner of
+    // the contact space free space is their union, x* stays at the corner,
+    // and coherence would hold the answer there frame after frame. So the
+    // shallowest single plane's projection is tried too (just outside it:
+    // on it the probe would touch, which counts as colliding).
+    if (!improved && c.data.planes.size() > 1) {
+      const ContactPlane* pick = nullptr;
+      for (const ContactPlane& p : c.data.planes) {
+        if (p.b > 0 && p.b < target && (pick == nullptr || p.b < pick->b)) pick = &p;
+      }
+      if (pick != nullptr &&
+          SweepFrom(c, (pick->b + 2 * c.eps) * pick->n, Vec3::Zero(), &x_new, true) ==
+              SweepOutcome::kHit &&
+          x_new.norm() < target) {
+        improved = true;
+        c.data.carried_planes.clear();
+      }
+    }
+    if (!improved) {
+      status = PdStatus::kPenetratingSolved;  // no improvement: local optimum
+      break;
+    }
+    best = x_new;
+    c.data.best_features = c.data.ccd.features;
+  }
+
+  // Final check: just beyond the answer along its own direction the probe
+  // must be free. A contact reached sideways (a pocket of free space, or an
+  // iteration stopped early) can fail this; then take the first contact on
+  // the answer's line coming from outside, which is free beyond by
+  // construction.
+  // When every contact normal has a clear positive component along the
+  // answer, moving further out opens every contact to first order and the
+  // collision query is skipped.
+  bool outward = false;
+  if (best.norm() > 0) {
+    const Vec3 u = best.normalized();
+    int planes = 0;
+    for (const FeaturePair& f : c.data.best_features) {
+      if (!(f.n_W.squaredNorm() > 0.5)) continue;  // no contact plane
+      ++planes;
+      if (f.n_W.dot(u) <= 0.05) planes = -1 << 20;
+    }
+    outward = planes > 0;
+  }
+  if (best.norm() > 0 && !outward) {
+    const Vec3 u = best.normalized();
+    const double push = std::max(1e-7 * best.norm(), 1e-12 * Size(c));
+    Vec3 x_line;
+    if (Colliding(c, best + u * push) && Sweep(c, OutsideAlong(c, u), Vec3::Zero(), &x_line)) {
+      best = x_line;
+      c.data.best_features = c.data.ccd.features;
+    }
+  }
+  return status;
+}
+
 }  // namespace
 
 namespace {
@@ -374,6 +546,7 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   }
 
   // 1. Free start and out-projection.
+  data->cold_seeds_used = 0;
   Vec3 best = Vec3::Zero();
   bool have_best = false;
   // Contact-space start; when its in-projection collides, the probe has
@@ -406,138 +579,33 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
       have_best = true;
     }
   }
-  if (!have_best) {
-    // Cold start on general meshes: directional out-projections along the
-    // centroid direction and both bodies' principal axes; the shallowest
-    // contact seeds the iteration.
-    Vec3 u0 = X_WA * A.mass().p_MC - X_WB * B.mesh().bounds().Center();
-    u0 = u0.norm() < 1e-12 * size ? Vec3(Vec3::UnitZ()) : Vec3(u0.normalized());
-    std::array<Vec3, 13> dirs;
-    dirs[0] = u0;
-    for (int k = 0; k < 3; ++k) {
-      dirs[1 + 2 * k] = X_WB.R * B.mass().X_MB.R.col(k);
-      dirs[2 + 2 * k] = -dirs[1 + 2 * k];
-      dirs[7 + 2 * k] = X_WA.R * A.mass().X_MB.R.col(k);
-      dirs[8 + 2 * k] = -dirs[7 + 2 * k];
-    }
-    const int count = request.cold_start_directions <= 1 ? 1 : 13;
-    for (int k = 0; k < count; ++k) {
-      Vec3 x_c;
-      if (Sweep(c, OutsideAlong(c, dirs[k]), Vec3::Zero(), &x_c) &&
-          (!have_best || x_c.norm() < best.norm())) {
-        best = x_c;
-        have_best = true;
-        data->best_features = data->ccd.features;
-      }
-    }
-  }
+  if (!have_best) ColdStart(c, &best, &have_best);
   if (!have_best) {
     result->failure = "no contact found along the out-projection from a free start";
     finish(PdStatus::kFailed);
     return;
   }
 
-  // 2-5. Iterate: local contact space, in-projection, classification.
-  PdStatus status = PdStatus::kPenetratingCapReached;
-  data->carried_planes.clear();
-  for (int it = 0; it < request.max_iterations; ++it) {
-    result->iterations = it + 1;
-    BuildPlanes(data->best_features, best, &data->planes);
-    if (data->planes.empty()) {
-      status = PdStatus::kPenetratingSolved;
-      break;
-    }
-    // After a blocked step, the planes we were sliding along still bound
-    // the free space (we moved from them into free space until something
-    // else blocked us): together they describe the crevice, which one set
-    // alone would zig-zag in.
-    for (const ContactPlane& q : data->carried_planes) AddPlane(q, &data->planes);
-    Vec3 x_star;
-    SolveMinNormQp(data->planes, best, &x_star);
-    const double best_norm = best.norm();
-    const double target = best_norm * (1 - request.improvement_tolerance) - 0.1 * c.eps;
-    Vec3 x_new;
-    bool improved = false;
-    bool blocked = false;
-    if (x_star.norm() < target) {
-      // Slide from the best contact (backed off to its free side) towards
-      // x*. Blocked on the way: that contact is the candidate (x* itself
-      // collides, as it does most of the time on curved or crowded
-      // surfaces). Not blocked: x* is free, and the out-projection from it
-      // towards the query pose is the candidate.
-      Vec3 n_avg = Vec3::Zero();
-      for (const FeaturePair& f : data->best_features) n_avg += f.n_W;
-      n_avg = n_avg.norm() > 1e-12 ? n_avg.normalized() : best.normalized();
-      SweepOutcome back = SweepFrom(c, best + n_avg * (2 * c.eps), x_star, &x_new, true);
-      if (back == SweepOutcome::kStartColliding) {
-        back = SweepFrom(c, best + best.normalized() * (2 * c.eps), x_star, &x_new, true);
-      }
-      if (back == SweepOutcome::kHit && x_new.norm() < target) {
-        improved = true;
-        data->carried_planes.swap(data->planes);
-        blocked = true;
-      } else if (SweepFrom(c, x_star, Vec3::Zero(), &x_new, back != SweepOutcome::kMiss) ==
-                 SweepOutcome::kHit) {
-        // (toi = 0 means x* itself is a contact; its features still refine
-        // the local contact space on the next iteration.)
-        improved = x_new.norm() < best_norm;
+  int iterations = 0;
+  PdStatus status = Refine(c, &best, &iterations);
+  result->iterations += iterations;
+  if (data->cold_seeds_used > 1) {
+    // Cold start: each further seed refined in turn; the shallowest answer
+    // wins (the shallowest seed often lies in another basin than the best
+    // answer).
+    data->cold_answer_features.swap(data->best_features);
+    for (int k = 1; k < data->cold_seeds_used; ++k) {
+      PdQueryData::ColdSeed& seed = data->cold_seeds[k];
+      data->best_features.swap(seed.features);
+      const PdStatus seed_status = Refine(c, &seed.x, &iterations);
+      result->iterations += iterations;
+      if (seed.x.norm() < best.norm()) {
+        best = seed.x;
+        status = seed_status;
+        data->cold_answer_features.swap(data->best_features);
       }
     }
-    if (!blocked) data->carried_planes.clear();
-    // x* satisfies every local plane at once: exact where the free space is
-    // locally their intersection (a crevice). At a convex ridge or corner of
-    // the contact space free space is their union, x* stays at the corner,
-    // and coherence would hold the answer there frame after frame. So the
-    // shallowest single plane's projection is tried too (just outside it:
-    // on it the probe would touch, which counts as colliding).
-    if (!improved && data->planes.size() > 1) {
-      const ContactPlane* pick = nullptr;
-      for (const ContactPlane& p : data->planes) {
-        if (p.b > 0 && p.b < target && (pick == nullptr || p.b < pick->b)) pick = &p;
-      }
-      if (pick != nullptr &&
-          SweepFrom(c, (pick->b + 2 * c.eps) * pick->n, Vec3::Zero(), &x_new, true) ==
-              SweepOutcome::kHit &&
-          x_new.norm() < target) {
-        improved = true;
-        data->carried_planes.clear();
-      }
-    }
-    if (!improved) {
-      status = PdStatus::kPenetratingSolved;  // no improvement: local optimum
-      break;
-    }
-    best = x_new;
-    data->best_features = data->ccd.features;
-  }
-
-  // Final check: just beyond the answer along its own direction the probe
-  // must be free. A contact reached sideways (a pocket of free space, or an
-  // iteration stopped early) can fail this; then take the first contact on
-  // the answer's line coming from outside, which is free beyond by
-  // construction.
-  // When every contact normal has a clear positive component along the
-  // answer, moving further out opens every contact to first order and the
-  // collision query is skipped.
-  bool outward = false;
-  if (best.norm() > 0) {
-    const Vec3 u = best.normalized();
-    int planes = 0;
-    for (const FeaturePair& f : data->best_features) {
-      if (!(f.n_W.squaredNorm() > 0.5)) continue;  // no contact plane
-      ++planes;
-      if (f.n_W.dot(u) <= 0.05) planes = -1 << 20;
-    }
-    outward = planes > 0;
-  }
-  if (best.norm() > 0 && !outward) {
-    const Vec3 u = best.normalized();
-    const double push = std::max(1e-7 * best.norm(), 1e-12 * size);
-    Vec3 x_line;
-    if (Colliding(c, best + u * push) && Sweep(c, OutsideAlong(c, u), Vec3::Zero(), &x_line)) {
-      best = x_line;
-      data->best_features = data->ccd.features;
-    }
+    data->best_features.swap(data->cold_answer_features);
   }
   result->translation_W = best;
   result->depth = best.norm();

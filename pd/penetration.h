@@ -83,6 +83,12 @@ struct PenetrationRequest {
   /// along both bodies' principal axes (13 directions) and keep the
   /// shallowest. Convex pairs start from the exact convex answer.
   int cold_start_directions = 13;
+  /// Cold start on non-convex models: how many of its contacts (the
+  /// shallowest, of directions at least 0.2 rad apart) are each refined by
+  /// the iteration; the shallowest answer wins. 1 refines the shallowest
+  /// contact only. More finds the right basin more often, at the cost of
+  /// one iteration run per seed.
+  int cold_start_seeds = 1;
   /// PDg only: run PDt on every query and start from the better of its answer
   /// and the motion-coherent start (default: PDt only when coherence gives no
   /// start, or a start much deeper than the cached answer it came from: more
@@ -127,7 +133,7 @@ struct PenetrationResult {
   Pose X_WA_result;  ///< probe pose at the answer (contact configuration)
   std::vector<ContactFeature> features;
   std::vector<ContactRegion> regions;
-  int iterations = 0;
+  int iterations = 0;  ///< summed over every cold-start seed refined
   double time_us = 0;
   /// Work done: collision queries and CCD sweeps (each a BVH traversal).
   int collision_queries = 0;

@@ -287,13 +287,15 @@ double RatioFromReferenceBasin(const ColdPair& pair, ColdVerifier& verify, const
 }  // namespace
 
 std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
-                                       const std::vector<ColdPose>& poses, bool diagnose) {
+                                       const std::vector<ColdPose>& poses, bool diagnose,
+                                       int cold_seeds) {
   std::vector<ColdAnswer> out;
   std::map<std::string, const ColdPair*> by_name;
   for (const ColdPair& p : pairs) by_name[p.name] = &p;
   std::map<std::string, std::unique_ptr<ColdVerifier>> verifiers;
   pd::PenetrationRequest cold;
   cold.use_coherence = false;
+  cold.cold_start_seeds = cold_seeds;
   pd::PenetrationRequest cold_unbudgeted = cold;
   cold_unbudgeted.pdg_iteration_budget = 0;
   pd::PdQueryData pdt_data;
@@ -390,8 +392,30 @@ ColdReport RunCold(const ColdOptions& o, std::ostream* log) {
       "refinements); seed {}",
       o.pdt_directions, o.pdt_directions / 4, o.pdg_rotations, kColdPdgMaxAngle, o.pdg_directions,
       o.seed));
-  report.poses = MakeColdPoses(pairs, o, log);
-  report.answers = RunColdQueries(pairs, report.poses, true);
+  if (o.poses_from.empty()) {
+    report.poses = MakeColdPoses(pairs, o, log);
+  } else {
+    std::ifstream in(o.poses_from);
+    if (!in) throw std::runtime_error("cannot read the pose set '" + o.poses_from + "'");
+    nlohmann::json j;
+    try {
+      j = nlohmann::json::parse(in);
+    } catch (const nlohmann::json::exception& e) {
+      throw std::runtime_error("pose set '" + o.poses_from + "' is not JSON: " + e.what());
+    }
+    report.poses = ColdPosesFromJson(j);
+    for (const ColdPose& pose : report.poses) {
+      const bool known = std::any_of(pairs.begin(), pairs.end(),
+                                     [&](const ColdPair& p) { return p.name == pose.pair; });
+      if (!known) {
+        throw std::runtime_error("pose set '" + o.poses_from + "' names pair '" + pose.pair +
+                                 "', which is not built here (shared models missing?)");
+      }
+    }
+    report.notes.push_back("poses and references read from " + o.poses_from);
+  }
+  report.answers = RunColdQueries(pairs, report.poses, true, o.cold_seeds);
+  report.notes.push_back(fmt::format("cold-start seeds refined per query: {}", o.cold_seeds));
   report.summary = SummarizeCold(report.answers);
   return report;
 }

@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "client/bench/scenarios.h"
+#include "pd/penetration.h"
 #include "tests/oracles/fcl_oracle.h"
 
 namespace hapticpd::bench {
@@ -77,6 +78,12 @@ struct ColdOptions {
   int pdt_directions = kColdPdtDirections;
   int pdg_rotations = kColdPdgRotations;
   int pdg_directions = kColdPdgDirections;
+  /// A stored pose set (ColdPosesToJson) to query instead of drawing new
+  /// poses: its references are reused, so a run takes seconds. Its pairs
+  /// must all be among the pairs built.
+  std::string poses_from;
+  /// PenetrationRequest::cold_start_seeds of every query.
+  int cold_seeds = pd::PenetrationRequest{}.cold_start_seeds;
 };
 
 /// Draws `options.poses` colliding poses per pair (a uniformly random
@@ -140,9 +147,11 @@ struct ColdAnswer {
 
 /// The cold queries of each pose: PDt, PDg without the work budget (as the
 /// one-shot command), PDg with the default budget. Each on its own query
-/// data, coherence off; time is the wall clock of the call.
+/// data, coherence off, with `cold_seeds` cold-start seeds
+/// (PenetrationRequest::cold_start_seeds); time is the wall clock of the call.
 std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
-                                       const std::vector<ColdPose>& poses, bool diagnose);
+                                       const std::vector<ColdPose>& poses, bool diagnose,
+                                       int cold_seeds = pd::PenetrationRequest{}.cold_start_seeds);
 
 struct ColdSummary {
   ColdKind kind = ColdKind::kPdt;
