@@ -209,10 +209,15 @@ std::vector<TelemetryLine> ParseTelemetry(const std::string& log) {
   return out;
 }
 
-double Mean(const std::vector<double>& v) {
-  double sum = 0;
-  for (double x : v) sum += x;
-  return v.empty() ? 0 : sum / static_cast<double>(v.size());
+// The median of per-second rates: a second in which the whole machine
+// stalls (seen here: every process of the test, observers included, lost
+// most of one second while nothing was started or killed) moves it less
+// than a change that lasts.
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n % 2 == 1 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
 std::string ReadText(const fs::path& p) {
@@ -415,10 +420,15 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
                                  scene, "--telemetry", "--duration", "20"},
         dir_ / ("observe-" + name + ".log"));
   }
-  // Kill once every session has run 5 s and hapticpd-2's presses in.
+  // Kill once every session has run 6 s and hapticpd-2's presses in. The
+  // survivors' "before" window (the 4 s before the kill) then starts 2 s
+  // after the last process was started: those starts cost the loops more
+  // than anything the window is about.
+  Clock::time_point last_started = Clock::time_point::min();
+  for (const auto& [name, t] : observed_from) last_started = std::max(last_started, t);
   ASSERT_TRUE(WaitFor(
       [&] {
-        if (Clock::now() < observed_from["hapticpd-2"] + 5s) return false;
+        if (Clock::now() < last_started + 6s) return false;
         for (const auto& [name, _] : coupled) {
           if (TelemetryOf(name).size() < 3) return false;
         }
@@ -485,8 +495,8 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
   EXPECT_GE(stats["hapticpd-2"]["connects"].get<int>(), 2)
       << "hapticpd-2's session did not reconnect after the restart: " << stats["hapticpd-2"].dump();
 
-  // The other processes' sessions went on at their rate: the mean of the
-  // update rates their observers saw over the 3 s before the kill and over
+  // The other processes' sessions went on at their rate: the median of the
+  // update rates their observers saw over the 4 s before the kill and over
   // the 3 s from 1 s into the quiet window after it differ by less than 5 %.
   for (const std::string name : {"hapticpd-1", "hapticpd-3"}) {
     observers_[name]->Wait();
@@ -494,13 +504,13 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
     for (const TelemetryLine& l : TelemetryOf(name)) {
       const auto at = observed_from[name] + std::chrono::duration_cast<Clock::duration>(
                                                 std::chrono::duration<double>(l.t_s));
-      if (at > killed - 3s && at <= killed) before.push_back(l.updates_hz);
+      if (at > killed - 4s && at <= killed) before.push_back(l.updates_hz);
       if (at > quiet_from + 1s && at <= quiet_from + 4s) after.push_back(l.updates_hz);
     }
     ASSERT_GE(before.size(), 2u) << observers_[name]->Log();
     ASSERT_GE(after.size(), 2u) << observers_[name]->Log();
-    const double b = Mean(before), a = Mean(after);
-    std::cout << name << ": mean updates/s " << b << " before the kill, " << a << " after\n";
+    const double b = Median(before), a = Median(after);
+    std::cout << name << ": median updates/s " << b << " before the kill, " << a << " after\n";
     EXPECT_GT(b, 0.9 * std::stod(kSessionRate)) << name << ": " << observers_[name]->Log();
     EXPECT_LT(std::abs(a / b - 1), 0.05)
         << name << ": " << b << " updates/s before the kill, " << a << " after\n"
