@@ -374,10 +374,14 @@ void ColdStart(PdtContext& c, Vec3* best, bool* have_best) {
     seed.x = x_c;
     seed.features = d.ccd.features;
   }
-  std::sort(d.cold_seeds.begin(), d.cold_seeds.begin() + d.cold_seeds_found,
-            [](const PdQueryData::ColdSeed& x, const PdQueryData::ColdSeed& y) {
-              return x.x.squaredNorm() < y.x.squaredNorm();
-            });
+  // Shallowest first; among equally deep seeds the earlier direction first
+  // (a stable insertion sort of at most 13, which allocates nothing).
+  for (int k = 1; k < d.cold_seeds_found; ++k) {
+    for (int j = k; j > 0 && d.cold_seeds[j].x.squaredNorm() < d.cold_seeds[j - 1].x.squaredNorm();
+         --j) {
+      std::swap(d.cold_seeds[j], d.cold_seeds[j - 1]);
+    }
+  }
   // The shallowest seeds of distinct directions, in order.
   const double cos_spread = std::cos(kColdSeedSpread);
   const int wanted = std::max(1, c.request.cold_start_seeds);
