@@ -406,13 +406,13 @@ void RegisterBench(CLI::App& app) {
         ->type_name("FILE");
     cmd->add_option("--poses-from", o->poses_from,
                     "Query a stored pose set (written by --write-reference) instead of drawing "
-                    "poses: its reference bounds are reused, so the run takes seconds")
+                    "poses: its reference bounds are reused instead of sampled again")
         ->type_name("FILE")
         ->check(CLI::ExistingFile);
     cmd->add_option("--cold-seeds", o->cold_seeds,
                     "Cold-start contacts refined per query, the shallowest answer kept "
                     "(PenetrationRequest::cold_start_seeds)")
-        ->check(CLI::Range(1, 13))
+        ->check(CLI::Range(1, pd::kColdStartDirections))
         ->capture_default_str();
     cmd->callback([o] { RunColdCmd(*o); });
   }

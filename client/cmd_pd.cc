@@ -45,10 +45,8 @@ struct PdOptions {
   std::string epsilon;
   std::string max_iterations;
   std::string pdg_budget = "0";
-  std::string cold_seeds = "13";
+  std::string cold_seeds = std::to_string(pd::kColdStartDirections);
 };
-
-constexpr int kMaxColdSeeds = 13;
 
 std::string Fmt(double x) {
   std::ostringstream os;
@@ -191,8 +189,9 @@ void RunPd(const PdOptions& o) {
   // cold-start seed is refined (accuracy over time, tests/bench/README.md
   // "Cold queries").
   request.cold_start_seeds = ParsePositiveInt("--cold-seeds", o.cold_seeds);
-  if (request.cold_start_seeds > kMaxColdSeeds) {
-    throw CommandError("pd: --cold-seeds must be at most " + std::to_string(kMaxColdSeeds) +
+  if (request.cold_start_seeds > pd::kColdStartDirections) {
+    throw CommandError("pd: --cold-seeds must be at most " +
+                       std::to_string(pd::kColdStartDirections) +
                        " (the cold start has that many out-projections), got " + o.cold_seeds);
   }
   const Pose X_WA = ParsePose("--pose", o.pose);
@@ -390,7 +389,9 @@ void RegisterPd(CLI::App& app) {
       ->type_name("N");
   cmd->add_option("--cold-seeds", opts->cold_seeds,
                   "Cold-start contacts each refined by the iteration, the shallowest answer "
-                  "kept (1 to 13; the servo loop's cold queries use " +
+                  "kept (1 to " +
+                      std::to_string(pd::kColdStartDirections) +
+                      "; the servo loop's cold queries use " +
                       std::to_string(pd::PenetrationRequest{}.cold_start_seeds) +
                       ": fewer seeds are faster and more often in a wrong, deeper basin)")
       ->type_name("N")

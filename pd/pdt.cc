@@ -341,10 +341,10 @@ void BuildPlanes(const std::vector<FeaturePair>& features, const Vec3& x_c,
 
 // The 13 fixed escape directions of the plain cold start: the centroid
 // direction and both bodies' principal axes.
-std::array<Vec3, 13> FixedColdDirections(const PdtContext& c, double size) {
+std::array<Vec3, kColdStartDirections> FixedColdDirections(const PdtContext& c, double size) {
   Vec3 u0 = c.X_WA * c.A.mass().p_MC - c.X_WB * c.B.mesh().bounds().Center();
   u0 = u0.norm() < 1e-12 * size ? Vec3(Vec3::UnitZ()) : Vec3(u0.normalized());
-  std::array<Vec3, 13> dirs;
+  std::array<Vec3, kColdStartDirections> dirs;
   dirs[0] = u0;
   for (int k = 0; k < 3; ++k) {
     dirs[1 + 2 * k] = c.X_WB.R * c.B.mass().X_MB.R.col(k);
@@ -362,12 +362,19 @@ std::array<Vec3, 13> FixedColdDirections(const PdtContext& c, double size) {
 // first, and PdtCore refines each.
 void ColdStart(PdtContext& c, Vec3* best, bool* have_best) {
   PdQueryData& d = c.data;
-  const std::array<Vec3, 13> fixed = FixedColdDirections(c, Size(c));
-  const int count = c.request.cold_start_directions <= 1 ? 1 : 13;
+  const std::array<Vec3, kColdStartDirections> fixed = FixedColdDirections(c, Size(c));
+  const int count = c.request.cold_start_directions <= 1 ? 1 : kColdStartDirections;
+  const int wanted = std::max(1, c.request.cold_start_seeds);
   d.cold_seeds_found = 0;
   for (int k = 0; k < count; ++k) {
     Vec3 x_c;
     if (!Sweep(c, OutsideAlong(c, fixed[k]), Vec3::Zero(), &x_c)) continue;
+    if (wanted == 1 && d.cold_seeds_found == 1) {
+      // One seed: keep only the first shallowest contact (no copies of the
+      // others' features).
+      if (!(x_c.squaredNorm() < d.cold_seeds[0].x.squaredNorm())) continue;
+      d.cold_seeds_found = 0;
+    }
     if (d.cold_seeds.size() <= static_cast<std::size_t>(d.cold_seeds_found))
       d.cold_seeds.emplace_back();
     PdQueryData::ColdSeed& seed = d.cold_seeds[d.cold_seeds_found++];
@@ -375,7 +382,8 @@ void ColdStart(PdtContext& c, Vec3* best, bool* have_best) {
     seed.features = d.ccd.features;
   }
   // Shallowest first; among equally deep seeds the earlier direction first
-  // (a stable insertion sort of at most 13, which allocates nothing).
+  // (a stable insertion sort of at most kColdStartDirections, which
+  // allocates nothing).
   for (int k = 1; k < d.cold_seeds_found; ++k) {
     for (int j = k; j > 0 && d.cold_seeds[j].x.squaredNorm() < d.cold_seeds[j - 1].x.squaredNorm();
          --j) {
@@ -384,7 +392,6 @@ void ColdStart(PdtContext& c, Vec3* best, bool* have_best) {
   }
   // The shallowest seeds of distinct directions, in order.
   const double cos_spread = std::cos(kColdSeedSpread);
-  const int wanted = std::max(1, c.request.cold_start_seeds);
   d.cold_seeds_used = 0;
   for (int k = 0; k < d.cold_seeds_found && d.cold_seeds_used < wanted; ++k) {
     const Vec3 u = d.cold_seeds[k].x.normalized();

@@ -39,6 +39,10 @@ enum class PdStatus : std::uint8_t {
 const char* ToString(PdStatus s);
 const char* ToString(PdMode m);
 
+/// The cold start's fixed out-projection directions: the centroid direction
+/// and both bodies' +- principal axes. Also the most cold-start seeds.
+inline constexpr int kColdStartDirections = 13;
+
 struct PenetrationRequest {
   /// Contact tolerance as a fraction of the scene body's size (bounding-box
   /// diagonal, or the probe's if smaller): feature pairs closer than this at
@@ -82,7 +86,7 @@ struct PenetrationRequest {
   /// models: 1 = out-project along the centroid direction only; >1 = also
   /// along both bodies' principal axes (13 directions) and keep the
   /// shallowest. Convex pairs start from the exact convex answer.
-  int cold_start_directions = 13;
+  int cold_start_directions = kColdStartDirections;
   /// Cold start on non-convex models: how many of its contacts (the
   /// shallowest, of directions at least 0.2 rad apart) are each refined by
   /// the iteration; the shallowest answer wins. 1 refines the shallowest

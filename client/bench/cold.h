@@ -79,7 +79,7 @@ struct ColdOptions {
   int pdg_rotations = kColdPdgRotations;
   int pdg_directions = kColdPdgDirections;
   /// A stored pose set (ColdPosesToJson) to query instead of drawing new
-  /// poses: its references are reused, so a run takes seconds. Its pairs
+  /// poses: its references are reused, so no sampling runs. Its pairs
   /// must all be among the pairs built.
   std::string poses_from;
   /// PenetrationRequest::cold_start_seeds of every query.

@@ -32,7 +32,7 @@ constexpr ColdThresholds kColdPdg{1.001, 2.49, 21.7, 12, 5};
 constexpr ColdThresholds kColdPdgBudget{1.001, 2.50, 21.7, 15, 6};
 // With every cold-start seed refined (PenetrationRequest::cold_start_seeds
 // 13). With one seed these fail: PDt max 2.67, 6 above 1.01, 3 above 1.10.
-constexpr int kAllSeeds = 13;
+constexpr int kAllSeeds = pd::kColdStartDirections;
 constexpr ColdThresholds kSeedsPdt{1.001, 1.01, 1.38, 2, 1};
 constexpr ColdThresholds kSeedsPdg{1.001, 1.43, 20.4, 10, 4};
 constexpr ColdThresholds kSeedsPdgBudget{1.001, 1.43, 20.4, 14, 5};
