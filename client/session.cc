@@ -707,6 +707,13 @@ void Session::Serve(Stream& s, std::stop_token st) {
   const auto poll =
       std::chrono::nanoseconds(static_cast<std::int64_t>(options_.poll_interval_s * 1e9));
   device::ProxySample due;
+  // The loop publishes one sample a period: an idle thread sleeps until the
+  // next is due (or the next telemetry batch), then polls, instead of
+  // waking every poll interval in between (most of this thread's CPU).
+  const std::int64_t poll_ns = poll.count();
+  const std::int64_t period_ns =
+      std::max(poll_ns, static_cast<std::int64_t>(loop_->config().period_s * 1e9));
+  std::int64_t next_sample_ns = 0;
   const bool telemetry = options_.telemetry;
   const auto telemetry_period =
       static_cast<std::int64_t>(std::max(1e-3, options_.telemetry_interval_s) * 1e9);
@@ -743,6 +750,7 @@ void Session::Serve(Stream& s, std::stop_token st) {
       const device::ProxySample& x = in.front();
       if (local_) local_->OfferSample(x);
       const std::int64_t now = clock_->NowNs();
+      next_sample_ns = x.time_ns + period_ns;
       const std::size_t slot = x.sequence % kRing;
       sent_ns_[slot].store(now, std::memory_order_relaxed);
       sent_seq_[slot].store(x.sequence, std::memory_order_release);
@@ -763,7 +771,15 @@ void Session::Serve(Stream& s, std::stop_token st) {
       }
       if (broken) break;
     }
-    if (idle) std::this_thread::sleep_for(poll);
+    if (idle) {
+      std::int64_t wait_ns = poll_ns;
+      if (!link_) {  // the emulated link's deliveries are due at any time
+        std::int64_t until = next_sample_ns;
+        if (telemetry && !flush_done_.load()) until = std::min(until, tel_.next_ns);
+        wait_ns = std::clamp(until - clock_->NowNs(), poll_ns, period_ns);
+      }
+      std::this_thread::sleep_for(std::chrono::nanoseconds(wait_ns));
+    }
   }
   connected_ = false;
   // The scene may change unseen while the stream is down.

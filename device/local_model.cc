@@ -360,9 +360,23 @@ void LocalContactModel::RejectPatch(const std::string& problem) {
 void LocalContactModel::OfferServerIr(const IntermediateRep& ir) {
   last_message_ns_.store(ir.receive_time_ns, std::memory_order_relaxed);
   server_.Write(ir);
+  Wake();
 }
 
-void LocalContactModel::OfferSample(const ProxySample& sample) { samples_.Write(sample); }
+void LocalContactModel::OfferSample(const ProxySample& sample) {
+  samples_.Write(sample);
+  Wake();
+}
+
+void LocalContactModel::Wake() {
+  bool waiting = false;
+  {
+    std::lock_guard lock(wake_mu_);
+    wake_ = true;
+    waiting = waiting_;
+  }
+  if (waiting) wake_cv_.notify_one();
+}
 
 void LocalContactModel::Reset() {
   {
@@ -604,8 +618,17 @@ void LocalContactModel::Start(IrMailbox* out, const Clock* clock) {
     }
   });
   thread_ = std::jthread([this, out, clock](std::stop_token st) {
+    const std::stop_callback on_stop(st, [this] { Wake(); });
     while (!st.stop_requested()) {
-      if (!Step(clock->NowNs(), out)) std::this_thread::sleep_for(std::chrono::microseconds(100));
+      if (Step(clock->NowNs(), out)) continue;
+      // Nothing new: sleep until an Offer (a sample or an answer) or Stop
+      // wakes us. The flag is set after the mailbox write, so an offer that
+      // came after Step looked is never slept through.
+      std::unique_lock lock(wake_mu_);
+      waiting_ = true;
+      wake_cv_.wait_for(lock, std::chrono::milliseconds(10), [&] { return wake_; });
+      waiting_ = false;
+      wake_ = false;
     }
   });
 }

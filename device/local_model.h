@@ -300,6 +300,13 @@ class LocalContactModel {
 
   std::condition_variable_any queue_cv_;  // wakes the builder
 
+  // Wakes the worker (Start) when a sample or an answer is offered.
+  void Wake();
+  std::mutex wake_mu_;
+  bool wake_ = false;     // under wake_mu_
+  bool waiting_ = false;  // under wake_mu_: the worker sleeps on wake_cv_
+  std::condition_variable wake_cv_;
+
   // Builder state (ApplyQueued).
   PatchStore store_;
   bool disabled_ = false;  // a patch was rejected: server answers only
