@@ -22,7 +22,7 @@
 #include "server/stats.h"
 #include "server/store.h"
 
-#if defined(__SANITIZE_THREAD__)
+#if defined(HAPTICPD_TSAN)
 #include <sanitizer/tsan_interface.h>
 #endif
 
@@ -38,7 +38,7 @@ namespace hapticpd::server::internal {
 // OnDone. The server hands its services to gRPC the same way (see
 // ServiceCall): gRPC's threads outlive a server and serve the next one in the
 // process. No-ops without TSan.
-#if defined(__SANITIZE_THREAD__)
+#if defined(HAPTICPD_TSAN)
 inline void GrpcHandOff(const void* reactor) { __tsan_release(const_cast<void*>(reactor)); }
 inline void GrpcTakeOver(const void* reactor) { __tsan_acquire(const_cast<void*>(reactor)); }
 extern "C" void __tsan_ignore_thread_begin();
@@ -78,7 +78,7 @@ class ServiceCall {
 template <class F>
 void GrpcStart(const void* reactor, F&& start) {
   GrpcHandOff(reactor);
-#if defined(__SANITIZE_THREAD__)
+#if defined(HAPTICPD_TSAN)
   __tsan_ignore_thread_begin();
   start();
   __tsan_ignore_thread_end();

@@ -5,7 +5,7 @@
 
 // Under AddressSanitizer the sanitizer owns operator new/delete (replacing
 // them here mixes its new[] with our free); counting is then unavailable.
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#if defined(HAPTICPD_ASAN) || defined(HAPTICPD_TSAN)
 #define HAPTICPD_COUNT_ALLOCATIONS 0
 #else
 #define HAPTICPD_COUNT_ALLOCATIONS 1

@@ -195,7 +195,7 @@ TEST(Load, SixteenSessionsAndSixtyFourObservers) {
   // 1 KiB per device update would be > 64 MiB within the 60 s long run
   // (about 16 x 300 updates/s), and a leak per observer frame (64 x 30/s)
   // of a frame's size (~1 KiB for 9 bodies) likewise.
-#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#if defined(HAPTICPD_ASAN) || defined(HAPTICPD_TSAN)
   // A sanitizer keeps freed memory in quarantine (AddressSanitizer: up to
   // 256 MiB) and pads every allocation, so RSS says nothing about growth per
   // message there; LeakSanitizer checks leaks in that build, and the release
