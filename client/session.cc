@@ -707,9 +707,11 @@ void Session::Serve(Stream& s, std::stop_token st) {
   const auto poll =
       std::chrono::nanoseconds(static_cast<std::int64_t>(options_.poll_interval_s * 1e9));
   device::ProxySample due;
-  // The loop publishes one sample a period: an idle thread sleeps until the
-  // next is due (or the next telemetry batch), then polls, instead of
-  // waking every poll interval in between (most of this thread's CPU).
+  // The loop publishes one sample a period: an idle thread sleeps until one
+  // poll interval before the next is due (or the next telemetry batch), then
+  // polls, instead of waking every poll interval in between (most of this
+  // thread's CPU). The interval early is for a late tick: its sample's time
+  // is late, and the next tick keeps the loop's schedule.
   const std::int64_t poll_ns = poll.count();
   const std::int64_t period_ns =
       std::max(poll_ns, static_cast<std::int64_t>(loop_->config().period_s * 1e9));
@@ -776,7 +778,7 @@ void Session::Serve(Stream& s, std::stop_token st) {
       if (!link_) {  // the emulated link's deliveries are due at any time
         std::int64_t until = next_sample_ns;
         if (telemetry && !flush_done_.load()) until = std::min(until, tel_.next_ns);
-        wait_ns = std::clamp(until - clock_->NowNs(), poll_ns, period_ns);
+        wait_ns = std::clamp(until - poll_ns - clock_->NowNs(), poll_ns, period_ns);
       }
       std::this_thread::sleep_for(std::chrono::nanoseconds(wait_ns));
     }
