@@ -9,6 +9,15 @@
 
 namespace hapticpd::testing {
 
+/// True in the sanitizer builds (HAPTICPD_ASAN / HAPTICPD_TSAN, defined by
+/// the top CMakeLists.txt from the flags), where code runs several times
+/// slower: heavy randomized tests run fewer cases there.
+#if defined(HAPTICPD_ASAN) || defined(HAPTICPD_TSAN)
+inline constexpr bool kSanitized = true;
+#else
+inline constexpr bool kSanitized = false;
+#endif
+
 /// Seed for randomized tests: HAPTICPD_TEST_SEED, else `fallback`.
 inline std::uint64_t TestSeed(std::uint64_t fallback = 20261121) {
   const char* s = std::getenv("HAPTICPD_TEST_SEED");

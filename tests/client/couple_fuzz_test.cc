@@ -64,17 +64,7 @@ namespace hapticpd {
 // translation unit, where anonymous-namespace helpers of different files meet.
 namespace couple_fuzz {
 
-#if defined(HAPTICPD_ASAN) || defined(HAPTICPD_TSAN)
-constexpr bool kSanitized = true;
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
-constexpr bool kSanitized = true;
-#else
-constexpr bool kSanitized = false;
-#endif
-#else
-constexpr bool kSanitized = false;
-#endif
+using testing::kSanitized;
 
 using device::Pose;
 using device::Quat;

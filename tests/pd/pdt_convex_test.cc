@@ -66,7 +66,7 @@ Pose RandomPoseNear(const GeometryModel& A, const GeometryModel& B, const Pose& 
 
 TEST(PdtConvexHull, EqualsExactSeparatingAxisValueOnHullsOfShapes) {
   std::mt19937_64 rng(testing::TestSeed());
-  const int count = testing::TestCount(80);
+  const int count = testing::TestCount(testing::kSanitized ? 20 : 80);
   double worst_fast = 0, worst_sat = 0, worst_epa = 0, worst_swap = 0;
   int total = 0, general_exact = 0, general_total = 0;
   double worst_general = 0;
