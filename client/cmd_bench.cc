@@ -164,7 +164,7 @@ struct ColdCmdOptions {
   std::string out = "hapticpd-bench-cold";
   std::string write_reference;
   std::string poses_from;
-  int cold_seeds = pd::PenetrationRequest{}.cold_start_seeds;
+  int cold_directions = pd::PenetrationRequest{}.cold_start_directions;
   int poses = 16;
   std::uint64_t seed = 1;
 };
@@ -181,7 +181,7 @@ void RunColdCmd(const ColdCmdOptions& o) {
   c.poses = o.poses;
   c.seed = o.seed;
   c.poses_from = o.poses_from;
-  c.cold_seeds = o.cold_seeds;
+  c.cold_directions = o.cold_directions;
   MakeOutputFolder("cold", "--out", o.out);
   const std::filesystem::path out(o.out);
   std::ostream& notes = o.json ? std::cerr : std::cout;
@@ -196,7 +196,7 @@ void RunColdCmd(const ColdCmdOptions& o) {
   if (o.procedural) command += " --procedural";
   if (o.models_given) command += " --models " + o.models;
   if (!o.poses_from.empty()) command += " --poses-from " + o.poses_from;
-  command += " --cold-seeds " + std::to_string(o.cold_seeds);
+  command += " --cold-directions " + std::to_string(o.cold_directions);
   const std::string date = UtcNow();
   const std::filesystem::path svg = out / "cold.svg";
   try {
@@ -409,10 +409,11 @@ void RegisterBench(CLI::App& app) {
                     "poses: its reference bounds are reused instead of sampled again")
         ->type_name("FILE")
         ->check(CLI::ExistingFile);
-    cmd->add_option("--cold-seeds", o->cold_seeds,
-                    "Cold-start contacts refined per query, the shallowest answer kept "
-                    "(PenetrationRequest::cold_start_seeds)")
-        ->check(CLI::Range(1, pd::kColdStartDirections))
+    cmd->add_option("--cold-directions", o->cold_directions,
+                    "Escape directions of each query's cold search "
+                    "(PenetrationRequest::cold_start_directions: 1 the centroid direction only, "
+                    "13 the fixed ones, more adds a sphere lattice)")
+        ->check(CLI::Range(1, pd::kMaxColdSearchDirections))
         ->capture_default_str();
     cmd->callback([o] { RunColdCmd(*o); });
   }

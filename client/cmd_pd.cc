@@ -45,7 +45,7 @@ struct PdOptions {
   std::string epsilon;
   std::string max_iterations;
   std::string pdg_budget = "0";
-  std::string cold_seeds = std::to_string(pd::kColdStartDirections);
+  std::string cold_directions = std::to_string(pd::kColdSearchDirections);
 };
 
 std::string Fmt(double x) {
@@ -184,15 +184,13 @@ void RunPd(const PdOptions& o) {
   // A one-shot query has no next query to carry a budgeted optimisation on:
   // no budget unless asked for.
   request.pdg_iteration_budget = ParseBudget("--pdg-budget", o.pdg_budget);
-  // Nor does it have a previous answer to start from: every query is cold,
-  // and a cold answer in the wrong basin is too deep, so by default every
-  // cold-start seed is refined (accuracy over time, tests/bench/README.md
-  // "Cold queries").
-  request.cold_start_seeds = ParsePositiveInt("--cold-seeds", o.cold_seeds);
-  if (request.cold_start_seeds > pd::kColdStartDirections) {
-    throw CommandError("pd: --cold-seeds must be at most " +
-                       std::to_string(pd::kColdStartDirections) +
-                       " (the cold start has that many out-projections), got " + o.cold_seeds);
+  // Nor does it have a previous answer to start from: every query is cold
+  // (the cold search, tests/bench/README.md "Cold queries").
+  request.cold_start_directions = ParsePositiveInt("--cold-directions", o.cold_directions);
+  if (request.cold_start_directions > pd::kMaxColdSearchDirections) {
+    throw CommandError("pd: --cold-directions must be at most " +
+                       std::to_string(pd::kMaxColdSearchDirections) + ", got " +
+                       o.cold_directions);
   }
   const Pose X_WA = ParsePose("--pose", o.pose);
   const Quat q_WA(X_WA.R);
@@ -387,13 +385,12 @@ void RegisterPd(CLI::App& app) {
   cmd->add_option("--max-iterations", opts->max_iterations,
                   "Cap on projection iterations per body (default 12)")
       ->type_name("N");
-  cmd->add_option("--cold-seeds", opts->cold_seeds,
-                  "Cold-start contacts each refined by the iteration, the shallowest answer "
-                  "kept (1 to " +
-                      std::to_string(pd::kColdStartDirections) +
-                      "; the servo loop's cold queries use " +
-                      std::to_string(pd::PenetrationRequest{}.cold_start_seeds) +
-                      ": fewer seeds are faster and more often in a wrong, deeper basin)")
+  cmd->add_option("--cold-directions", opts->cold_directions,
+                  "Escape directions of the cold search (1 to " +
+                      std::to_string(pd::kMaxColdSearchDirections) +
+                      ": 1 the centroid direction only, 13 the centroid direction and both "
+                      "bodies' principal axes, more adds a sphere lattice; fewer is faster and "
+                      "more often in a wrong, deeper basin)")
       ->type_name("N")
       ->capture_default_str();
   cmd->add_option("--pdg-budget", opts->pdg_budget,

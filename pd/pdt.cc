@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <numbers>
 
 #include "pd/convex.h"
 #include "pd/material.h"
@@ -42,6 +43,8 @@ PdQueryData::PdQueryData() {
   collision.pairs.reserve(16);
   ccd.features.reserve(1024);
   best_features.reserve(1024);
+  cold_answer_features.reserve(1024);
+  cold_contact_features.reserve(1024);
   planes.reserve(1024);
   contact_space_B.reserve(1024);
   carried_planes.reserve(1024);
@@ -181,9 +184,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 Pose Shifted(const Pose& X, const Vec3& x) { return Pose{X.R, X.t + x}; }
-
-// Cold start: the least angle between the directions of two seeds refined.
-constexpr double kColdSeedSpread = 0.2;  // radians
 
 struct PdtContext {
   const GeometryModel& A;
@@ -355,58 +355,6 @@ std::array<Vec3, kColdStartDirections> FixedColdDirections(const PdtContext& c, 
   return dirs;
 }
 
-// Cold start on general meshes: out-projections along the centroid
-// direction and both bodies' principal axes. Every contact reached is a
-// seed; the shallowest request.cold_start_seeds of them whose directions are
-// at least kColdSeedSpread apart come first in data.cold_seeds, shallowest
-// first, and PdtCore refines each.
-void ColdStart(PdtContext& c, Vec3* best, bool* have_best) {
-  PdQueryData& d = c.data;
-  const std::array<Vec3, kColdStartDirections> fixed = FixedColdDirections(c, Size(c));
-  const int count = c.request.cold_start_directions <= 1 ? 1 : kColdStartDirections;
-  const int wanted = std::max(1, c.request.cold_start_seeds);
-  d.cold_seeds_found = 0;
-  for (int k = 0; k < count; ++k) {
-    Vec3 x_c;
-    if (!Sweep(c, OutsideAlong(c, fixed[k]), Vec3::Zero(), &x_c)) continue;
-    if (wanted == 1 && d.cold_seeds_found == 1) {
-      // One seed: keep only the first shallowest contact (no copies of the
-      // others' features).
-      if (!(x_c.squaredNorm() < d.cold_seeds[0].x.squaredNorm())) continue;
-      d.cold_seeds_found = 0;
-    }
-    if (d.cold_seeds.size() <= static_cast<std::size_t>(d.cold_seeds_found))
-      d.cold_seeds.emplace_back();
-    PdQueryData::ColdSeed& seed = d.cold_seeds[d.cold_seeds_found++];
-    seed.x = x_c;
-    seed.features = d.ccd.features;
-  }
-  // Shallowest first; among equally deep seeds the earlier direction first
-  // (a stable insertion sort of at most kColdStartDirections, which
-  // allocates nothing).
-  for (int k = 1; k < d.cold_seeds_found; ++k) {
-    for (int j = k; j > 0 && d.cold_seeds[j].x.squaredNorm() < d.cold_seeds[j - 1].x.squaredNorm();
-         --j) {
-      std::swap(d.cold_seeds[j], d.cold_seeds[j - 1]);
-    }
-  }
-  // The shallowest seeds of distinct directions, in order.
-  const double cos_spread = std::cos(kColdSeedSpread);
-  d.cold_seeds_used = 0;
-  for (int k = 0; k < d.cold_seeds_found && d.cold_seeds_used < wanted; ++k) {
-    const Vec3 u = d.cold_seeds[k].x.normalized();
-    bool near = false;
-    for (int j = 0; j < d.cold_seeds_used; ++j) {
-      near = near || d.cold_seeds[j].x.normalized().dot(u) > cos_spread;
-    }
-    if (!near) std::swap(d.cold_seeds[d.cold_seeds_used++], d.cold_seeds[k]);
-  }
-  if (d.cold_seeds_used == 0) return;
-  *best = d.cold_seeds[0].x;
-  *have_best = true;
-  d.best_features.swap(d.cold_seeds[0].features);
-}
-
 // Steps 2-5 from the contact `*best_io` (its features in
 // data.best_features), then the final check; leaves the answer in *best_io
 // and its features in data.best_features.
@@ -517,6 +465,93 @@ PdStatus Refine(PdtContext& c, Vec3* best_io, int* iterations) {
   return status;
 }
 
+// The cold search's k-th escape direction of `count`: the fixed ones, then
+// a Fibonacci sphere lattice of the rest (computed, not stored: nothing is
+// allocated).
+Vec3 ColdDirection(const std::array<Vec3, kColdStartDirections>& fixed, int k, int count) {
+  if (k < kColdStartDirections) return fixed[k];
+  const int n = count - kColdStartDirections;
+  const int i = k - kColdStartDirections;
+  const double z = 1 - (2 * i + 1.0) / n;
+  const double r = std::sqrt(std::max(0.0, 1 - z * z));
+  const double phi = i * 2.39996322972865332;  // the golden angle
+  return {r * std::cos(phi), r * std::sin(phi), z};
+}
+
+// Around the best answer: kColdLocalDirections directions on each of the
+// cones of these half-angles (radians), widest first.
+constexpr std::array<double, 3> kColdLocalSpreads = {0.3, 0.1, 0.03};
+constexpr int kColdLocalDirections = 8;
+
+// The j-th direction around unit w.
+Vec3 LocalDirection(const Vec3& w, int j) {
+  const int cone = j / kColdLocalDirections;
+  const int i = j % kColdLocalDirections;
+  const Vec3 e1 = w.unitOrthogonal();
+  const Vec3 e2 = w.cross(e1);
+  const double phi = i * (2 * std::numbers::pi / kColdLocalDirections) + 0.5 * cone;
+  return (w + kColdLocalSpreads[cone] * (std::cos(phi) * e1 + std::sin(phi) * e2)).normalized();
+}
+
+// Cold search: out-projections along request.cold_start_directions escape
+// directions and then around the best answer, each refined to its local
+// optimum as soon as it beats the best answer so far; the shallowest answer
+// wins. Once an answer is known, a direction's sweep starts just inside that
+// answer's depth instead of outside the bounding spheres: a start that
+// collides drops the direction (nothing shallower lies that way), so most
+// directions cost one early-out collision test, the sweeps that run are
+// short, and a free start there also reaches free pockets that a sweep from
+// outside never meets. Leaves the answer in *best, its features in
+// data.best_features; false when no direction reached a contact.
+bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
+  PdQueryData& d = c.data;
+  const std::array<Vec3, kColdStartDirections> fixed = FixedColdDirections(c, Size(c));
+  const int count = std::clamp(c.request.cold_start_directions, 1, kMaxColdSearchDirections);
+  const int local = count > 1 ? static_cast<int>(kColdLocalSpreads.size()) * kColdLocalDirections : 0;
+  bool have_best = false;
+  double best_norm = std::numeric_limits<double>::infinity();
+  for (int k = 0; k < count + local; ++k) {
+    if (k >= count && !have_best) break;
+    const Vec3 u = k < count ? ColdDirection(fixed, k, count) : LocalDirection(best->normalized(), k - count);
+    Vec3 x;
+    if (have_best) {
+      // Only a contact shallower than the best answer by the iteration's own
+      // improvement tolerance is worth a refinement.
+      const double reach = best_norm * (1 - c.request.improvement_tolerance);
+      if (SweepFrom(c, u * reach, Vec3::Zero(), &x, true) != SweepOutcome::kHit) {
+        continue;
+      }
+      d.cold_answer_features.swap(d.best_features);  // keep the best answer's
+    } else if (!Sweep(c, OutsideAlong(c, u), Vec3::Zero(), &x)) {
+      continue;
+    }
+    d.best_features = d.ccd.features;
+    d.cold_contact_features = d.ccd.features;
+    const Vec3 x_contact = x;
+    int its = 0;
+    PdStatus s = Refine(c, &x, &its);
+    *iterations += its;
+    if (x.norm() > x_contact.norm()) {
+      // The refinement ended deeper than it began (its final check found the
+      // answer not free beyond and fell back to the line's contact from
+      // outside): the swept contact itself is free beyond, as the sweep came
+      // through free space along its direction.
+      x = x_contact;
+      d.best_features.swap(d.cold_contact_features);
+      s = PdStatus::kPenetratingSolved;
+    }
+    if (x.norm() < best_norm) {
+      best_norm = x.norm();
+      *best = x;
+      *status = s;
+      have_best = true;
+    } else {
+      d.best_features.swap(d.cold_answer_features);  // back to the best answer's
+    }
+  }
+  return have_best;
+}
+
 }  // namespace
 
 namespace {
@@ -557,7 +592,6 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   }
 
   // 1. Free start and out-projection.
-  data->cold_seeds_used = 0;
   Vec3 best = Vec3::Zero();
   bool have_best = false;
   // Contact-space start; when its in-projection collides, the probe has
@@ -590,34 +624,16 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
       have_best = true;
     }
   }
-  if (!have_best) ColdStart(c, &best, &have_best);
-  if (!have_best) {
+  int iterations = 0;
+  PdStatus status = PdStatus::kPenetratingCapReached;
+  if (have_best) {
+    status = Refine(c, &best, &iterations);
+  } else if (!ColdSearch(c, &best, &status, &iterations)) {
     result->failure = "no contact found along the out-projection from a free start";
     finish(PdStatus::kFailed);
     return;
   }
-
-  int iterations = 0;
-  PdStatus status = Refine(c, &best, &iterations);
-  result->iterations += iterations;
-  if (data->cold_seeds_used > 1) {
-    // Cold start: each further seed refined in turn; the shallowest answer
-    // wins (the shallowest seed often lies in another basin than the best
-    // answer).
-    data->cold_answer_features.swap(data->best_features);
-    for (int k = 1; k < data->cold_seeds_used; ++k) {
-      PdQueryData::ColdSeed& seed = data->cold_seeds[k];
-      data->best_features.swap(seed.features);
-      const PdStatus seed_status = Refine(c, &seed.x, &iterations);
-      result->iterations += iterations;
-      if (seed.x.norm() < best.norm()) {
-        best = seed.x;
-        status = seed_status;
-        data->cold_answer_features.swap(data->best_features);
-      }
-    }
-    data->best_features.swap(data->cold_answer_features);
-  }
+  result->iterations = iterations;
   result->translation_W = best;
   result->depth = best.norm();
   result->X_WA_result = Shifted(X_WA, best);

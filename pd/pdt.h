@@ -66,16 +66,10 @@ class PdQueryData {
   std::vector<ContactPlane> planes;
   std::vector<ContactPlane> carried_planes;
   std::vector<int> cluster_of;
-  /// Cold start: the contacts reached by its out-projections, with their
-  /// features; the first cold_seeds_used are refined.
-  struct ColdSeed {
-    Vec3 x = Vec3::Zero();
-    std::vector<FeaturePair> features;
-  };
-  std::vector<ColdSeed> cold_seeds;
-  int cold_seeds_found = 0;
-  int cold_seeds_used = 0;
+  /// Cold search: the best answer's features while another is refined.
   std::vector<FeaturePair> cold_answer_features;
+  /// Cold search: the features of the contact being refined, as swept.
+  std::vector<FeaturePair> cold_contact_features;
 };
 
 /// Solves min |x|^2 subject to n_i . x >= b_i exactly (primal active set

@@ -39,9 +39,14 @@ enum class PdStatus : std::uint8_t {
 const char* ToString(PdStatus s);
 const char* ToString(PdMode m);
 
-/// The cold start's fixed out-projection directions: the centroid direction
-/// and both bodies' +- principal axes. Also the most cold-start seeds.
+/// The cold search's fixed escape directions: the centroid direction and
+/// both bodies' +- principal axes.
 inline constexpr int kColdStartDirections = 13;
+/// The cold search's default number of escape directions: the fixed ones,
+/// then a uniform sphere lattice of 128.
+inline constexpr int kColdSearchDirections = kColdStartDirections + 128;
+/// The most escape directions a cold search may be asked for.
+inline constexpr int kMaxColdSearchDirections = 4096;
 
 struct PenetrationRequest {
   /// Contact tolerance as a fraction of the scene body's size (bounding-box
@@ -83,16 +88,16 @@ struct PenetrationRequest {
   /// (to compare the two, or to test the iteration on known answers).
   bool convex_shortcut = true;
   /// Cold start (nothing usable in the coherence cache) on non-convex
-  /// models: 1 = out-project along the centroid direction only; >1 = also
-  /// along both bodies' principal axes (13 directions) and keep the
-  /// shallowest. Convex pairs start from the exact convex answer.
-  int cold_start_directions = kColdStartDirections;
-  /// Cold start on non-convex models: how many of its contacts (the
-  /// shallowest, of directions at least 0.2 rad apart) are each refined by
-  /// the iteration; the shallowest answer wins. 1 refines the shallowest
-  /// contact only. More finds the right basin more often, at the cost of
-  /// one iteration run per seed.
-  int cold_start_seeds = 1;
+  /// models: how many escape directions the cold search tries. 1: the
+  /// centroid direction only; up to kColdStartDirections: the first of the
+  /// fixed directions (centroid, then both bodies' +- principal axes); more:
+  /// the fixed ones and a uniform sphere lattice of the rest. Each direction
+  /// whose out-projection beats the best answer so far is refined to its
+  /// local optimum, and with more than one direction 24 more around the best
+  /// answer follow. More directions find the right basin more often, at the
+  /// cost of an early-out collision test each. Convex pairs start from the
+  /// exact convex answer. At most kMaxColdSearchDirections.
+  int cold_start_directions = kColdSearchDirections;
   /// PDg only: run PDt on every query and start from the better of its answer
   /// and the motion-coherent start (default: PDt only when coherence gives no
   /// start, or a start much deeper than the cached answer it came from: more
@@ -137,7 +142,7 @@ struct PenetrationResult {
   Pose X_WA_result;  ///< probe pose at the answer (contact configuration)
   std::vector<ContactFeature> features;
   std::vector<ContactRegion> regions;
-  int iterations = 0;  ///< summed over every cold-start seed refined
+  int iterations = 0;  ///< summed over every answer the cold search refined
   double time_us = 0;
   /// Work done: collision queries and CCD sweeps (each a BVH traversal).
   int collision_queries = 0;

@@ -288,14 +288,14 @@ double RatioFromReferenceBasin(const ColdPair& pair, ColdVerifier& verify, const
 
 std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
                                        const std::vector<ColdPose>& poses, bool diagnose,
-                                       int cold_seeds) {
+                                       int cold_directions) {
   std::vector<ColdAnswer> out;
   std::map<std::string, const ColdPair*> by_name;
   for (const ColdPair& p : pairs) by_name[p.name] = &p;
   std::map<std::string, std::unique_ptr<ColdVerifier>> verifiers;
   pd::PenetrationRequest cold;
   cold.use_coherence = false;
-  cold.cold_start_seeds = cold_seeds;
+  cold.cold_start_directions = cold_directions;
   pd::PenetrationRequest cold_unbudgeted = cold;
   cold_unbudgeted.pdg_iteration_budget = 0;
   pd::PdQueryData pdt_data;
@@ -414,8 +414,9 @@ ColdReport RunCold(const ColdOptions& o, std::ostream* log) {
     }
     report.notes.push_back("poses and references read from " + o.poses_from);
   }
-  report.answers = RunColdQueries(pairs, report.poses, true, o.cold_seeds);
-  report.notes.push_back(fmt::format("cold-start seeds refined per query: {}", o.cold_seeds));
+  report.answers = RunColdQueries(pairs, report.poses, true, o.cold_directions);
+  report.notes.push_back(
+      fmt::format("cold search escape directions per query: {}", o.cold_directions));
   report.summary = SummarizeCold(report.answers);
   return report;
 }

@@ -82,8 +82,8 @@ struct ColdOptions {
   /// poses: its references are reused, so no sampling runs. Its pairs
   /// must all be among the pairs built.
   std::string poses_from;
-  /// PenetrationRequest::cold_start_seeds of every query.
-  int cold_seeds = pd::PenetrationRequest{}.cold_start_seeds;
+  /// PenetrationRequest::cold_start_directions of every query.
+  int cold_directions = pd::PenetrationRequest{}.cold_start_directions;
 };
 
 /// Draws `options.poses` colliding poses per pair (a uniformly random
@@ -147,11 +147,12 @@ struct ColdAnswer {
 
 /// The cold queries of each pose: PDt, PDg without the work budget (as the
 /// one-shot command), PDg with the default budget. Each on its own query
-/// data, coherence off, with `cold_seeds` cold-start seeds
-/// (PenetrationRequest::cold_start_seeds); time is the wall clock of the call.
+/// data, coherence off, with `cold_directions` escape directions
+/// (PenetrationRequest::cold_start_directions); time is the wall clock of the
+/// call.
 std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
                                        const std::vector<ColdPose>& poses, bool diagnose,
-                                       int cold_seeds = pd::PenetrationRequest{}.cold_start_seeds);
+                                       int cold_directions = pd::PenetrationRequest{}.cold_start_directions);
 
 struct ColdSummary {
   ColdKind kind = ColdKind::kPdt;

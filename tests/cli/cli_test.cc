@@ -84,17 +84,17 @@ TEST(CliTest, PdHelpDocumentsDeepestBody) {
   EXPECT_EQ(r.exit_code, 0);
   for (const char* s :
        {"--probe", "--scene", "--pose", "--scene-pose", "--mode", "--json", "--stiffness",
-        "--epsilon", "--max-iterations", "--pdg-budget", "--cold-seeds", "DEEPEST"}) {
+        "--epsilon", "--max-iterations", "--pdg-budget", "--cold-directions", "DEEPEST"}) {
     EXPECT_NE(r.out.find(s), std::string::npos) << s << " missing from:\n" << r.out;
   }
 }
 
 // A stored cold pose (tests/data/cold/procedural.json, hammer vs torus knot
 // at 12.1 % of the hammer's size) whose reference, an upper bound sampled
-// with FCL in 2,000 directions and refined, is 0.0395515 m. Refining only
-// the shallowest cold-start contact ends in another basin 2.67 times as
-// deep; the one-shot command refines all 13 by default and ends within 1 %.
-TEST(CliTest, PdRefinesEveryColdStartSeedByDefault) {
+// with FCL in 2,000 directions and refined, is 0.0395515 m. The centroid
+// direction alone ends in another basin 2.67 times as deep; the default cold
+// search ends within 1 %.
+TEST(CliTest, PdColdSearchFindsTheShallowBasin) {
   const std::string cmd =
       "pd --probe shape:hammer:2 --scene shape:torusknot:2,3,0.25,0.06,420,24 --pose '"
       "0.16806746228033353 0.14968197841278252 -0.0315605302233079 0.22192018099856578 "
@@ -103,7 +103,7 @@ TEST(CliTest, PdRefinesEveryColdStartSeedByDefault) {
   const RunResult all = RunCli(cmd);
   ASSERT_EQ(all.exit_code, 0) << all.err;
   EXPECT_LE(Json(all)["depth"].get<double>(), 1.01 * kReference);
-  const RunResult one = RunCli(cmd + " --cold-seeds 1");
+  const RunResult one = RunCli(cmd + " --cold-directions 1");
   ASSERT_EQ(one.exit_code, 0) << one.err;
   EXPECT_GT(Json(one)["depth"].get<double>(), 2 * kReference);
 }
@@ -344,9 +344,10 @@ TEST(CliTest, PdBadInput) {
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode pdg --pdg-budget -1",
                      "--pdg-budget: must be a non-negative integer");
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode pdg --pdg-budget 1e3", "got '1e3'");
-  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --cold-seeds 0", "--cold-seeds");
-  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --cold-seeds 14",
-                     "--cold-seeds must be at most 13");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --cold-directions 0",
+                     "--cold-directions");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --cold-directions 4097",
+                     "--cold-directions must be at most 4096");
   ExpectOneLineError("pd --scene shape:box" + ok_pose, "--probe");
   ExpectOneLineError("pd --probe shape:box" + ok_pose, "--scene");
   ExpectOneLineError(std::string(kBoxes), "--pose");
