@@ -1,8 +1,8 @@
-// The bad-input table of the README, as a test: every class of bad request
-// the SceneService and HapticService reject, the exact status and message the
-// user gets, and proof that nothing changed (every scene, byte for byte,
-// before and after the rejected request). HAPTICPD_PRINT_TABLE=1 prints the
-// rows as README markdown.
+// The "SceneService and Couple" bad-input table of tests/README.md, as a
+// test: every class of bad request the SceneService and HapticService
+// reject, the exact status and message the user gets, and proof that nothing
+// changed (every scene, byte for byte, before and after the rejected
+// request). HAPTICPD_PRINT_TABLE=1 prints the rows as README markdown.
 #include <gtest/gtest.h>
 #include <unistd.h>
 

@@ -3,8 +3,8 @@
 // file, a foreign SQLite database, an unknown schema version, a directory
 // locked by another server) that leave the file untouched, and SQLite errors
 // (an injected commit failure, a full database) that fail the mutation with
-// nothing changed while the server keeps serving. The README "State
-// directory" table is checked against the messages here.
+// nothing changed while the server keeps serving. The "State directory"
+// table of tests/README.md is checked against the messages here.
 #include <gtest/gtest.h>
 #include <sqlite3.h>
 
@@ -407,10 +407,10 @@ TEST(Store, TheStoreWinsOverSceneFilesAndDefaultComesOnlyIntoAnEmptyStore) {
   EXPECT_EQ(list.scenes(0).scene_id(), "default");
 }
 
-// README.md "Robustness", "State directory": every row's message, with DIR
-// for the state directory, is the one a start-up gets.
+// tests/README.md "Bad input", "State directory": every row's message, with
+// DIR for the state directory, is the one a start-up gets.
 TEST(Store, ReadmeStateDirectoryTableMatches) {
-  std::ifstream in(fs::path(HAPTICPD_TESTDATA_DIR) / ".." / ".." / "README.md");
+  std::ifstream in(fs::path(HAPTICPD_TESTDATA_DIR) / ".." / "README.md");
   ASSERT_TRUE(in);
   std::string line;
   bool in_section = false;
