@@ -650,9 +650,17 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   Best best, pdt_best;
   bool pdt_done = false;
   const PenetrationResult& pdt = data->pdt_result;
-  auto run_pdt = [&] {
+  auto run_pdt = [&](bool basin_lost) {
     PenetrationRequest pdt_request = request;
     pdt_request.compute_regions = false;
+    // A lost basin inside a coherent run searches the fixed escape
+    // directions only: the full cold search (the one-shot and first-frame
+    // answer) costs several times more, and the next frames carry on from
+    // whatever this one finds.
+    if (basin_lost) {
+      pdt_request.cold_start_directions =
+          std::min(pdt_request.cold_start_directions, kColdStartDirections);
+    }
     ComputePdt(A, X_WA, B, X_WB, pdt_request, &data->pdt, &data->pdt_result);
     pdt_done = true;
     if (pdt.status == PdStatus::kPenetratingSolved ||
@@ -675,7 +683,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
       best.valid && std::sqrt(best.sigma) > 1.2 * std::sqrt(cached_sigma) + slack;
   if (lost_basin && !request.pdg_always_pdt_start) data->pdt.ResetCoherence();
   if (!best.valid || request.pdg_always_pdt_start || lost_basin) {
-    run_pdt();
+    run_pdt(lost_basin && !request.pdg_always_pdt_start);
     if (pdt_best.valid && pdt_best.sigma < best.sigma) {
       best = pdt_best;
       FeaturesFromPdt(pdt, &data->best_features);
@@ -797,7 +805,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
 
   // Verified answer: a contact along its own motion; else the PDt answer.
   if (!Polish(c, &best)) {
-    if (!pdt_done) run_pdt();
+    if (!pdt_done) run_pdt(false);
     if (pdt_best.valid) {
       best = pdt_best;
       FeaturesFromPdt(pdt, &data->best_features);

@@ -24,10 +24,12 @@ struct BenchArgs {
   std::string models;      ///< folder of the shared models
   std::string csv;         ///< summary CSV
   std::string frames_csv;  ///< per-frame CSV (empty: none)
+  std::string benchmark;   ///< run only this benchmark (empty: all)
   int num_frames = 2000;
 };
 
 /// Parses [--models DIR] [--frames N] [--csv FILE] [--frames-csv FILE]
+/// [--benchmark NAME]
 /// (each also as --flag=VALUE) over the defaults in `*args`; prints the usage
 /// of `program` and returns false on anything else.
 inline bool ParseBenchArgs(int argc, char** argv, const char* program, BenchArgs* args) {
@@ -45,11 +47,14 @@ inline bool ParseBenchArgs(int argc, char** argv, const char* program, BenchArgs
       args->csv = v;
     } else if (const char* v = value("--frames-csv")) {
       args->frames_csv = v;
+    } else if (const char* v = value("--benchmark")) {
+      args->benchmark = v;
     } else if (const char* v = value("--frames")) {
       args->num_frames = std::max(8, std::atoi(v));
     } else {
       std::cerr << "usage: " << program
-                << " [--models DIR] [--frames N] [--csv FILE] [--frames-csv FILE]\n";
+                << " [--models DIR] [--frames N] [--csv FILE] [--frames-csv FILE] "
+                   "[--benchmark NAME]\n";
       return false;
     }
   }
@@ -94,6 +99,14 @@ inline bool StartRun(int argc, char** argv, const char* program, const char* mod
   run->args.csv = std::string(program) + ".csv";
   if (!ParseBenchArgs(argc, argv, program, &run->args)) return false;
   run->benchmarks = BuildBenchmarks(run->args.models);
+  if (!run->args.benchmark.empty()) {
+    std::erase_if(run->benchmarks,
+                  [&](const Benchmark& b) { return b.name != run->args.benchmark; });
+    if (run->benchmarks.empty()) {
+      std::cerr << program << ": no benchmark named '" << run->args.benchmark << "'\n";
+      return false;
+    }
+  }
   if (!run->args.frames_csv.empty()) {
     run->per_frame.open(run->args.frames_csv);
     run->per_frame << frames_csv_header;

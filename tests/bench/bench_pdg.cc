@@ -22,7 +22,8 @@
 // assertions on time.
 //
 //   ./build/release/tests/bench/bench_pdg [--models DIR] [--frames N] [--csv FILE]
-//                                         [--frames-csv FILE]
+//                                         [--frames-csv FILE] [--benchmark NAME]
+// Under callgrind each PD call is a dump of its own (callgrind_frame.h).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -38,6 +39,7 @@
 #include "pd/pdt.h"
 #include "pd/queries.h"
 #include "tests/bench/bench_common.h"
+#include "tests/bench/callgrind_frame.h"
 
 namespace hp = hapticpd;
 namespace pd = hapticpd::pd;
@@ -101,9 +103,15 @@ Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
   for (std::size_t i = 0; i < b.frames.size(); ++i) {
     const Pose& X_WA = b.frames[i].X_WA;
     const auto t0 = std::chrono::steady_clock::now();
-    pd::ComputePdg(*b.probe, X_WA, *b.scene, X_WB, request, &pdg_data, &pdg);
+    {
+      const hp::bench::CallgrindFrame cg("pdg", i);
+      pd::ComputePdg(*b.probe, X_WA, *b.scene, X_WB, request, &pdg_data, &pdg);
+    }
     const auto t1 = std::chrono::steady_clock::now();
-    pd::ComputePdt(*b.probe, X_WA, *b.scene, X_WB, request, &pdt_data, &pdt);
+    {
+      const hp::bench::CallgrindFrame cg("pdt", i);
+      pd::ComputePdt(*b.probe, X_WA, *b.scene, X_WB, request, &pdt_data, &pdt);
+    }
     const auto t2 = std::chrono::steady_clock::now();
     FrameRecord& r = (*records)[i];
     r.pdg_us = Us(t0, t1);
@@ -133,6 +141,7 @@ Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
     unbudgeted.pdg_iteration_budget = 0;
     for (std::size_t i = 0; i < b.frames.size(); ++i) {
       const auto t0 = std::chrono::steady_clock::now();
+      const hp::bench::CallgrindFrame cg("pdg-unbudgeted", i);
       pd::ComputePdg(*b.probe, b.frames[i].X_WA, *b.scene, X_WB, unbudgeted, &unbudgeted_data,
                      &pdg);
       FrameRecord& r = (*records)[i];

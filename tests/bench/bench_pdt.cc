@@ -13,7 +13,8 @@
 // and optionally one row per frame (--frames-csv FILE). No assertions on time.
 //
 //   ./build/release/tests/bench/bench_pdt [--models DIR] [--frames N] [--csv FILE]
-//                                         [--frames-csv FILE]
+//                                         [--frames-csv FILE] [--benchmark NAME]
+// Under callgrind each PD call is a dump of its own (callgrind_frame.h).
 //
 // Without ../shared/models the bunny and the statue are replaced by
 // procedural torus knots (and the output says so).
@@ -33,6 +34,7 @@
 #include "pd/queries.h"
 #include "pd/shapes.h"
 #include "tests/bench/bench_common.h"
+#include "tests/bench/callgrind_frame.h"
 
 namespace hp = hapticpd;
 namespace pd = hapticpd::pd;
@@ -93,7 +95,10 @@ Summary Replay(const Benchmark& b, std::vector<FrameRecord>* records) {
   pd::PenetrationResult result;
   for (std::size_t i = 0; i < b.frames.size(); ++i) {
     const auto t0 = std::chrono::steady_clock::now();
-    pd::ComputePdt(*b.probe, b.frames[i].X_WA, *b.scene, X_WB, request, &data, &result);
+    {
+      const hp::bench::CallgrindFrame cg("pdt", i);
+      pd::ComputePdt(*b.probe, b.frames[i].X_WA, *b.scene, X_WB, request, &data, &result);
+    }
     const auto t1 = std::chrono::steady_clock::now();
     FrameRecord& r = (*records)[i];
     r.pdt_us = Us(t0, t1);
