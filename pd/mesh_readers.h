@@ -1,7 +1,7 @@
 // Our own readers for OFF and PLY (ASCII and binary) bodies, used by
 // pd::LoadMesh instead of OpenMesh's, whose stream-based parsing trusts the
 // header counts: a body that does not match its header made them allocate
-// gigabytes (fuzzer finds, README "Robustness"). These readers allocate
+// gigabytes (fuzzer finds; tests/README.md, "Fuzzing"). These readers allocate
 // only for what the file actually holds, so memory is O(file size), and name
 // the line (or byte offset) and the problem on any mismatch.
 #pragma once

@@ -68,8 +68,8 @@ struct PenetrationRequest {
   /// with kPenetratingCapReached, and motion coherence carries the
   /// optimisation on at the next query. It bounds the time of the deep
   /// queries where each iteration gains a fraction of a percent of sigma
-  /// (bench_pdg: hammer vs beast p99 1.3 ms without, 0.65 ms with it; the
-  /// answers' summed depth +0.7%, README). 0: no budget.
+  /// (what it costs in depth and saves in time: tests/bench/README.md,
+  /// "PDg"). 0: no budget.
   std::uint64_t pdg_iteration_budget = 8000;
   /// Cluster contacts into regions with local depths (needed for force).
   bool compute_regions = true;
