@@ -13,19 +13,29 @@
 namespace hapticpd::cli {
 namespace {
 
+// Numbers separated by commas, whitespace or both ("0.5,0,0", "0.5 0 0",
+// "0.5, 0, 0"), as every pose option of the command line takes them. An
+// empty field between two commas is an error, not a zero.
 std::vector<double> ParseNumbers(const std::string& text, const std::string& option) {
   std::vector<double> out;
-  std::stringstream ss(text);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    try {
-      std::size_t used = 0;
-      const double v = std::stod(item, &used);
-      if (used != item.size() && item.find_first_not_of(' ', used) != std::string::npos) throw 0;
-      out.push_back(v);
-    } catch (...) {
-      throw CommandError(option + ": '" + item + "' is not a number (in '" + text + "')");
+  std::stringstream fields(text);
+  std::string field;
+  while (std::getline(fields, field, ',')) {
+    std::istringstream words(field);
+    std::string item;
+    bool any = false;
+    while (words >> item) {
+      any = true;
+      try {
+        std::size_t used = 0;
+        const double v = std::stod(item, &used);
+        if (used != item.size()) throw 0;
+        out.push_back(v);
+      } catch (...) {
+        throw CommandError(option + ": '" + item + "' is not a number (in '" + text + "')");
+      }
     }
+    if (!any) throw CommandError(option + ": an empty field (in '" + text + "')");
   }
   return out;
 }
@@ -105,7 +115,8 @@ void Check(const grpc::Status& s, const std::string& cmd) {
 v1::Pose ParsePose(const std::string& text, const std::string& option) {
   const auto v = ParseNumbers(text, option);
   if (v.size() != 3 && v.size() != 7) {
-    throw CommandError(option + ": expected 'x,y,z' or 'x,y,z,qw,qx,qy,qz', got '" + text + "'");
+    throw CommandError(option + ": expected 'x y z' or 'x y z qw qx qy qz' (commas or spaces), got '" +
+                       text + "'");
   }
   v1::Pose p;
   p.mutable_position()->set_x(v[0]);
@@ -124,7 +135,8 @@ v1::Pose ParsePose(const std::string& text, const std::string& option) {
 v1::Twist ParseTwist(const std::string& text, const std::string& option) {
   const auto v = ParseNumbers(text, option);
   if (v.size() != 3 && v.size() != 6) {
-    throw CommandError(option + ": expected 'vx,vy,vz' or 'vx,vy,vz,wx,wy,wz', got '" + text + "'");
+    throw CommandError(option + ": expected 'vx vy vz' or 'vx vy vz wx wy wz' (commas or spaces), got '" +
+                       text + "'");
   }
   v1::Twist t;
   t.mutable_linear()->set_x(v[0]);

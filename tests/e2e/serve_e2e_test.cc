@@ -155,6 +155,12 @@ TEST(ServeE2eTest, CliDrivesAServerThatStopsCleanlyOnSigterm) {
   r = Cli("move " + s + " --body body-1 --pose 0.6,0,0,1,0,0,0", srv.dir());
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("body-1"), std::string::npos);
+  // The same pose syntax as pd's: spaces, commas or both between numbers.
+  r = Cli("move " + s + " --body body-1 --pose '0.6 0 0 1, 0, 0, 0'", srv.dir());
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  r = Cli("move " + s + " --body body-1 --pose '0.6,,0'", srv.dir());
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(r.err.find("--pose: an empty field"), std::string::npos) << r.err;
   r = Cli("scene list " + s, srv.dir());
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("default  bodies 2"), std::string::npos) << r.out;
