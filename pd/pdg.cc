@@ -601,21 +601,9 @@ bool Polish(PdgContext& c, Best* best) {
   }
 }
 
-// A fresh PDg result for the query pose, keeping the vectors' capacity (no
-// allocation on the hot path).
+// A fresh PDg result for the query pose (no allocation on the hot path).
 void ResetResult(const Pose& X_WA, PenetrationResult* result) {
-  std::vector<ContactFeature> features = std::move(result->features);
-  std::vector<ContactRegion> regions = std::move(result->regions);
-  std::string failure = std::move(result->failure);
-  features.clear();
-  regions.clear();
-  failure.clear();
-  *result = PenetrationResult{};
-  result->features = std::move(features);
-  result->regions = std::move(regions);
-  result->failure = std::move(failure);
-  result->mode = PdMode::kGeneralized;
-  result->X_WA_result = X_WA;
+  ResetPenetrationResult(PdMode::kGeneralized, X_WA, result);
 }
 
 void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,

@@ -35,6 +35,21 @@ const char* ToString(PdMode m) {
   return "unknown";
 }
 
+void ResetPenetrationResult(PdMode mode, const Pose& X_WA, PenetrationResult* result) {
+  std::vector<ContactFeature> features = std::move(result->features);
+  std::vector<ContactRegion> regions = std::move(result->regions);
+  std::string failure = std::move(result->failure);
+  features.clear();
+  regions.clear();
+  failure.clear();
+  *result = PenetrationResult{};
+  result->features = std::move(features);
+  result->regions = std::move(regions);
+  result->failure = std::move(failure);
+  result->mode = mode;
+  result->X_WA_result = X_WA;
+}
+
 PdQueryData::PdQueryData() {
   // Generous first sizes so typical sessions never grow them; they still
   // grow (once) if a query needs more.
@@ -561,17 +576,7 @@ namespace {
 void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
              const PenetrationRequest& request, PdQueryData* data, PenetrationResult* result,
              Clock::time_point t0) {
-  result->mode = PdMode::kTranslational;
-  result->failure.clear();
-  result->features.clear();
-  result->regions.clear();
-  result->iterations = 0;
-  result->depth = 0;
-  result->translation_W.setZero();
-  result->X_WA_result = X_WA;
-  result->sigma = 0;
-  result->rotation_angle = 0;
-  result->rotation_axis_W = Vec3::UnitZ();
+  ResetPenetrationResult(PdMode::kTranslational, X_WA, result);
   const double size = std::min(A.mesh().size(), B.mesh().size());
   PdtContext c{A, X_WA, B, X_WB, request, *data, std::max(request.contact_epsilon, 1e-12) * size};
   auto finish = [&](PdStatus status) {

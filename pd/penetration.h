@@ -153,4 +153,10 @@ struct PenetrationResult {
   Vec3 rotation_axis_W = Vec3::UnitZ();
 };
 
+/// Makes `result` a fresh answer of `mode` for the probe at X_WA: every
+/// field as default-constructed (status kFailed until the query sets it),
+/// X_WA_result = X_WA. Keeps the capacity of its vectors and string, so a
+/// reused result allocates nothing.
+void ResetPenetrationResult(PdMode mode, const Pose& X_WA, PenetrationResult* result);
+
 }  // namespace hapticpd::pd

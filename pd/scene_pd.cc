@@ -35,17 +35,8 @@ void ComputeScenePd(PdMode mode, const GeometryModel& A, const Pose& X_WA,
     // B in A is impossible then too.)
     if ((cA - cB).squaredNorm() > reach * reach * (1 + 1e-12)) {
       result->tested[i] = false;
+      ResetPenetrationResult(mode, X_WA, &r);
       r.status = PdStatus::kSeparated;
-      r.mode = mode;
-      r.depth = 0;
-      r.sigma = 0;
-      r.rotation_angle = 0;
-      r.translation_W.setZero();
-      r.X_WA_result = X_WA;
-      r.features.clear();
-      r.regions.clear();
-      r.iterations = 0;
-      r.time_us = 0;
       continue;
     }
     result->tested[i] = true;

@@ -524,6 +524,51 @@ TEST(PdForceOnly, ScenePdSumsTheSameForceWithoutTorque) {
   }
 }
 
+// A body the broad phase skips gets a fresh result: nothing of an earlier
+// query on the same ScenePdResult stays behind (a failure text, query
+// counts, PDg's rotation), in either mode.
+TEST(ScenePd, ABodyTheBroadPhaseSkipsKeepsNothingOfTheLastQuery) {
+  const StickInSlot c;
+  const std::vector<SceneBody> bodies = {{c.slot, Pose::Identity(), Material{}}};
+  const Pose X_far = Pose::FromTranslation(Vec3(5, 0, 0));
+  Pose X_nan = c.X_WA;
+  X_nan.t.x() = std::numeric_limits<double>::quiet_NaN();
+  for (PdMode mode : {PdMode::kTranslational, PdMode::kGeneralized}) {
+    SCOPED_TRACE(ToString(mode));
+    for (const Pose& before : {c.X_WA, X_nan}) {
+      ScenePdData d;
+      ScenePdResult r;
+      ComputeScenePd(mode, *c.stick, before, bodies, ColdRequest(), &d, &r);
+      ASSERT_TRUE(r.tested[0]);
+      const PenetrationResult& b = r.bodies[0];
+      // The earlier query left something a stale copy would keep.
+      EXPECT_TRUE(!b.failure.empty() || b.collision_queries > 0 ||
+                  b.rotation_axis_W != Vec3::UnitZ())
+          << ToString(b.status);
+      ComputeScenePd(mode, *c.stick, X_far, bodies, ColdRequest(), &d, &r);
+      ASSERT_FALSE(r.tested[0]);
+      const PenetrationResult& a = r.bodies[0];
+      EXPECT_EQ(a.status, PdStatus::kSeparated);
+      EXPECT_EQ(a.mode, mode);
+      EXPECT_EQ(a.failure, "");
+      EXPECT_EQ(a.depth, 0);
+      EXPECT_EQ(a.translation_W, Vec3::Zero());
+      EXPECT_EQ(a.X_WA_result.t, X_far.t);
+      EXPECT_EQ(a.X_WA_result.R, X_far.R);
+      EXPECT_TRUE(a.features.empty());
+      EXPECT_TRUE(a.regions.empty());
+      EXPECT_EQ(a.iterations, 0);
+      EXPECT_EQ(a.time_us, 0);
+      EXPECT_EQ(a.collision_queries, 0);
+      EXPECT_EQ(a.ccd_queries, 0);
+      EXPECT_EQ(a.sigma, 0);
+      EXPECT_EQ(a.rotation_angle, 0);
+      EXPECT_EQ(a.rotation_axis_W, Vec3::UnitZ());
+      EXPECT_FALSE(r.colliding);
+    }
+  }
+}
+
 // --------------------------------------------------------------------------
 // Hard cases
 
