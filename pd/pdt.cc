@@ -670,6 +670,12 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
 void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
                 const PenetrationRequest& request, PdQueryData* data, PenetrationResult* result) {
   const auto t0 = Clock::now();
+  if (!X_WA.R.allFinite() || !X_WA.t.allFinite() || !X_WB.R.allFinite() || !X_WB.t.allFinite()) {
+    ResetPenetrationResult(PdMode::kTranslational, X_WA, result);
+    result->failure = "non-finite pose (probe or scene body)";
+    result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
+    return;  // status kFailed
+  }
   // Work in B's frame: the answer then depends only on the relative pose, so
   // a common rigid motion of probe and scene moves the answer with it (up to
   // the rounding of X_BA), and the coherence cache is naturally relative to B.

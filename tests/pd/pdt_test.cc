@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <limits>
 #include <random>
 
 #include "client/bench/ground_truth.h"
@@ -253,6 +254,29 @@ void ExpectFiniteVerified(const GeometryModel& A, const Pose& X_WA, const Geomet
   }
   const FclModel fa(A.mesh()), fb(B.mesh());
   ExpectRealContact(fa, fb, X_WB, r);
+}
+
+// A NaN or infinite pose (probe or body) is a failed query that says so,
+// without a search: never a depth made of NaNs.
+TEST(PdtHardCases, NonFinitePoseFailsNamingIt) {
+  const ModelPtr A = MakeModel(shapes::Stick());
+  const ModelPtr B = MakeModel(shapes::TorusKnot());
+  for (double bad : {std::numeric_limits<double>::quiet_NaN(),
+                     std::numeric_limits<double>::infinity()}) {
+    Pose X_bad = Pose::FromTranslation(Vec3(0, 0, 0));
+    X_bad.t.y() = bad;
+    for (bool probe : {true, false}) {
+      const Pose& X_WA = probe ? X_bad : Pose::Identity();
+      const Pose& X_WB = probe ? Pose::Identity() : X_bad;
+      PdQueryData d;
+      PenetrationResult r;
+      ComputePdt(*A, X_WA, *B, X_WB, PenetrationRequest{}, &d, &r);
+      EXPECT_EQ(r.status, PdStatus::kFailed);
+      EXPECT_EQ(r.failure, "non-finite pose (probe or scene body)");
+      EXPECT_EQ(r.ccd_queries, 0);
+      EXPECT_EQ(r.depth, 0);
+    }
+  }
 }
 
 TEST(PdtHardCases, BoxRestingFlatOnBoxCoplanarFaces) {
