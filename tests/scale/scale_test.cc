@@ -497,7 +497,9 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
 
   // The other processes' sessions went on at their rate: the median of the
   // update rates their observers saw over the 4 s before the kill and over
-  // the 3 s from 1 s into the quiet window after it differ by less than 5 %.
+  // the 3 s from 1 s into the quiet window after it differ by less than
+  // 10 % (a stall of a survivor shows as a second at a fraction of the
+  // rate; a machine busy with other work moved the medians by up to 5.4 %).
   for (const std::string name : {"hapticpd-1", "hapticpd-3"}) {
     observers_[name]->Wait();
     std::vector<double> before, after;
@@ -516,7 +518,7 @@ TEST_F(Scale, EachSceneLivesOnItsOwnerAndNowhereElseWhenItDies) {
     // one (448 updates/s of 500 seen once), so the floor is generous; the
     // comparison below is what the test is about.
     EXPECT_GT(b, 0.75 * std::stod(kSessionRate)) << name << ": " << observers_[name]->Log();
-    EXPECT_LT(std::abs(a / b - 1), 0.05)
+    EXPECT_LT(std::abs(a / b - 1), 0.10)
         << name << ": " << b << " updates/s before the kill, " << a << " after\n"
         << observers_[name]->Log();
   }
