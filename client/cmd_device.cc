@@ -360,8 +360,9 @@ void RegisterDevice(CLI::App& app) {
   cmd->add_option("--simulated", o->simulated,
                   "Simulated hand script: hold, press, slide, twist, circle, loop, plate");
   cmd->add_option("--replay", o->replay, "Replay a trajectory CSV (as written by --record)");
-  cmd->add_option("--start", o->start,
-                  "Start pose \"x y z [qw qx qy qz]\", commas or spaces (default: above the scene, centred)");
+  cmd->add_option(
+      "--start", o->start,
+      "Start pose \"x y z [qw qx qy qz]\", commas or spaces (default: above the scene, centred)");
   cmd->add_option("--duration", o->duration, "Seconds to run")->capture_default_str();
   cmd->add_option("--travel", o->travel, "Script travel (m)")->capture_default_str();
   cmd->add_option("--max-rate", o->max_rate, "Ask the server for at most this many updates/s")

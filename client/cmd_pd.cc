@@ -189,8 +189,7 @@ void RunPd(const PdOptions& o) {
   request.cold_start_directions = ParsePositiveInt("--cold-directions", o.cold_directions);
   if (request.cold_start_directions > pd::kMaxColdSearchDirections) {
     throw CommandError("pd: --cold-directions must be at most " +
-                       std::to_string(pd::kMaxColdSearchDirections) + ", got " +
-                       o.cold_directions);
+                       std::to_string(pd::kMaxColdSearchDirections) + ", got " + o.cold_directions);
   }
   const Pose X_WA = ParsePose("--pose", o.pose);
   const Quat q_WA(X_WA.R);

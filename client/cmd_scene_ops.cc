@@ -473,7 +473,9 @@ void RegisterSceneOps(CLI::App& app) {
     cmd->add_option("--scene", o->scene, "Scene id")->capture_default_str();
     cmd->add_option("--mesh", o->mesh, "Mesh file (.obj, .stl, .ply, .off), uploaded in chunks");
     cmd->add_option("--shape", o->shape, "Built-in shape instead, e.g. 'box:0.05,0.05,0.05'");
-    cmd->add_option("--pose", o->pose, "\"x y z [qw qx qy qz]\" in metres (commas or spaces between numbers)")->capture_default_str();
+    cmd->add_option("--pose", o->pose,
+                    "\"x y z [qw qx qy qz]\" in metres (commas or spaces between numbers)")
+        ->capture_default_str();
     cmd->add_option("--velocity", o->velocity, "\"vx vy vz [wx wy wz]\" (commas or spaces)");
     cmd->add_option("--id", o->id, "Body id (default: assigned by the server)");
     cmd->add_option("--label", o->label, "Label shown to observers (default: the file or shape)");
@@ -488,7 +490,9 @@ void RegisterSceneOps(CLI::App& app) {
     AddConnectionOptions(cmd, &o->conn);
     cmd->add_option("--scene", o->scene, "Scene id")->capture_default_str();
     cmd->add_option("--body", o->body, "Body id")->required();
-    cmd->add_option("--pose", o->pose, "\"x y z [qw qx qy qz]\" in metres (commas or spaces between numbers)")->required();
+    cmd->add_option("--pose", o->pose,
+                    "\"x y z [qw qx qy qz]\" in metres (commas or spaces between numbers)")
+        ->required();
     cmd->add_option("--velocity", o->velocity, "\"vx vy vz [wx wy wz]\" (commas or spaces)");
     cmd->callback([o] { RunMove(*o); });
   }

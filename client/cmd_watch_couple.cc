@@ -181,8 +181,10 @@ void RegisterWatchCouple(CLI::App& app) {
     cmd->add_option("--probe-shape", o->probe_shape, "Probe shape")->capture_default_str();
     cmd->add_option("--probe-body", o->probe_body, "Use this scene body as the probe instead");
     cmd->add_option("--mode", o->mode, "pdt, pdg or none")->capture_default_str();
-    cmd->add_option("--from", o->from, "Start position \"x y z\" (commas or spaces)")->capture_default_str();
-    cmd->add_option("--to", o->to, "Turning position \"x y z\" (commas or spaces)")->capture_default_str();
+    cmd->add_option("--from", o->from, "Start position \"x y z\" (commas or spaces)")
+        ->capture_default_str();
+    cmd->add_option("--to", o->to, "Turning position \"x y z\" (commas or spaces)")
+        ->capture_default_str();
     cmd->add_option("--rate", o->rate, "Poses per second")->capture_default_str();
     cmd->add_option("--duration", o->duration, "Seconds (0 < d)")->capture_default_str();
     cmd->add_option("--period", o->period, "Seconds per sweep there and back")

@@ -115,7 +115,8 @@ void Check(const grpc::Status& s, const std::string& cmd) {
 v1::Pose ParsePose(const std::string& text, const std::string& option) {
   const auto v = ParseNumbers(text, option);
   if (v.size() != 3 && v.size() != 7) {
-    throw CommandError(option + ": expected 'x y z' or 'x y z qw qx qy qz' (commas or spaces), got '" +
+    throw CommandError(option +
+                       ": expected 'x y z' or 'x y z qw qx qy qz' (commas or spaces), got '" +
                        text + "'");
   }
   v1::Pose p;
@@ -135,7 +136,8 @@ v1::Pose ParsePose(const std::string& text, const std::string& option) {
 v1::Twist ParseTwist(const std::string& text, const std::string& option) {
   const auto v = ParseNumbers(text, option);
   if (v.size() != 3 && v.size() != 6) {
-    throw CommandError(option + ": expected 'vx vy vz' or 'vx vy vz wx wy wz' (commas or spaces), got '" +
+    throw CommandError(option +
+                       ": expected 'vx vy vz' or 'vx vy vz wx wy wz' (commas or spaces), got '" +
                        text + "'");
   }
   v1::Twist t;

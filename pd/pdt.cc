@@ -522,12 +522,14 @@ bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
   PdQueryData& d = c.data;
   const std::array<Vec3, kColdStartDirections> fixed = FixedColdDirections(c, Size(c));
   const int count = std::clamp(c.request.cold_start_directions, 1, kMaxColdSearchDirections);
-  const int local = count > 1 ? static_cast<int>(kColdLocalSpreads.size()) * kColdLocalDirections : 0;
+  const int local =
+      count > 1 ? static_cast<int>(kColdLocalSpreads.size()) * kColdLocalDirections : 0;
   bool have_best = false;
   double best_norm = std::numeric_limits<double>::infinity();
   for (int k = 0; k < count + local; ++k) {
     if (k >= count && !have_best) break;
-    const Vec3 u = k < count ? ColdDirection(fixed, k, count) : LocalDirection(best->normalized(), k - count);
+    const Vec3 u =
+        k < count ? ColdDirection(fixed, k, count) : LocalDirection(best->normalized(), k - count);
     Vec3 x;
     if (have_best) {
       // Only a contact shallower than the best answer by the iteration's own

@@ -150,9 +150,9 @@ struct ColdAnswer {
 /// data, coherence off, with `cold_directions` escape directions
 /// (PenetrationRequest::cold_start_directions); time is the wall clock of the
 /// call.
-std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
-                                       const std::vector<ColdPose>& poses, bool diagnose,
-                                       int cold_directions = pd::PenetrationRequest{}.cold_start_directions);
+std::vector<ColdAnswer> RunColdQueries(
+    const std::vector<ColdPair>& pairs, const std::vector<ColdPose>& poses, bool diagnose,
+    int cold_directions = pd::PenetrationRequest{}.cold_start_directions);
 
 struct ColdSummary {
   ColdKind kind = ColdKind::kPdt;

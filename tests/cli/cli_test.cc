@@ -344,8 +344,7 @@ TEST(CliTest, PdBadInput) {
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode pdg --pdg-budget -1",
                      "--pdg-budget: must be a non-negative integer");
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --mode pdg --pdg-budget 1e3", "got '1e3'");
-  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --cold-directions 0",
-                     "--cold-directions");
+  ExpectOneLineError(std::string(kBoxes) + ok_pose + " --cold-directions 0", "--cold-directions");
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --cold-directions 4097",
                      "--cold-directions must be at most 4096");
   ExpectOneLineError("pd --scene shape:box" + ok_pose, "--probe");

@@ -261,8 +261,8 @@ void ExpectFiniteVerified(const GeometryModel& A, const Pose& X_WA, const Geomet
 TEST(PdtHardCases, NonFinitePoseFailsNamingIt) {
   const ModelPtr A = MakeModel(shapes::Stick());
   const ModelPtr B = MakeModel(shapes::TorusKnot());
-  for (double bad : {std::numeric_limits<double>::quiet_NaN(),
-                     std::numeric_limits<double>::infinity()}) {
+  for (double bad :
+       {std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()}) {
     Pose X_bad = Pose::FromTranslation(Vec3(0, 0, 0));
     X_bad.t.y() = bad;
     for (bool probe : {true, false}) {
