@@ -97,27 +97,13 @@ std::uint64_t ParseBudget(const std::string& option, const std::string& text) {
   return static_cast<std::uint64_t>(v);
 }
 
-/// "tx ty tz qw qx qy qz" (whitespace or commas between numbers): a world
+/// "tx ty tz qw qx qy qz" (ParseNumbers: spaces, commas or both): a world
 /// pose, translation in metres and a unit quaternion. A quaternion off unit
 /// length by more than 1e-6 is an error rather than silently normalised: it
 /// usually means the numbers are in the wrong order.
 Pose ParsePose(const std::string& option, const std::string& text) {
   static constexpr const char* kNames[7] = {"tx", "ty", "tz", "qw", "qx", "qy", "qz"};
-  std::string spaced = text;
-  for (char& ch : spaced) {
-    if (ch == ',') ch = ' ';
-  }
-  std::istringstream is(spaced);
-  std::vector<double> v;
-  std::string token;
-  while (is >> token) {
-    double x = 0;
-    if (!ParseDouble(token, &x)) {
-      throw CommandError(option + ": '" + token +
-                         "' is not a number (expected \"tx ty tz qw qx qy qz\")");
-    }
-    v.push_back(x);
-  }
+  const std::vector<double> v = ParseNumbers(text, option);
   if (v.size() != 7) {
     throw CommandError(option + ": expected 7 numbers \"tx ty tz qw qx qy qz\", got " +
                        std::to_string(v.size()));

@@ -4,6 +4,9 @@
 
 #include <CLI/CLI.hpp>
 
+#include <string>
+#include <vector>
+
 #include "client/link_emulator.h"
 
 namespace hapticpd::cli {
@@ -31,5 +34,13 @@ void AddLinkOptions(CLI::App* cmd, client::LinkOptions* link);
 struct CommandError : std::runtime_error {
   using std::runtime_error::runtime_error;
 };
+
+/// The numbers of a vector option such as a pose: separated by commas,
+/// whitespace or both ("0.5 0 0", "0.5,0,0", "0.5, 0, 0"), every pose option
+/// of the command line alike. Each in strtod syntax, nan and inf included
+/// (a caller that needs finite values checks, naming the component). A
+/// token that is not a number, or an empty field between two commas, is a
+/// CommandError naming `option`.
+std::vector<double> ParseNumbers(const std::string& text, const std::string& option);
 
 }  // namespace hapticpd::cli

@@ -11,11 +11,7 @@
 #include "server/server.h"
 
 namespace hapticpd::cli {
-namespace {
 
-// Numbers separated by commas, whitespace or both ("0.5,0,0", "0.5 0 0",
-// "0.5, 0, 0"), as every pose option of the command line takes them. An
-// empty field between two commas is an error, not a zero.
 std::vector<double> ParseNumbers(const std::string& text, const std::string& option) {
   std::vector<double> out;
   std::stringstream fields(text);
@@ -26,21 +22,17 @@ std::vector<double> ParseNumbers(const std::string& text, const std::string& opt
     bool any = false;
     while (words >> item) {
       any = true;
-      try {
-        std::size_t used = 0;
-        const double v = std::stod(item, &used);
-        if (used != item.size()) throw 0;
-        out.push_back(v);
-      } catch (...) {
+      char* end = nullptr;
+      const double v = std::strtod(item.c_str(), &end);
+      if (end != item.c_str() + item.size()) {
         throw CommandError(option + ": '" + item + "' is not a number (in '" + text + "')");
       }
+      out.push_back(v);
     }
     if (!any) throw CommandError(option + ": an empty field (in '" + text + "')");
   }
   return out;
 }
-
-}  // namespace
 
 void AddConnectionOptions(CLI::App* cmd, ConnectionOptions* o) {
   if (const char* s = std::getenv("HAPTICPD_SERVER")) o->server = s;
