@@ -601,15 +601,10 @@ bool Polish(PdgContext& c, Best* best) {
   }
 }
 
-// A fresh PDg result for the query pose (no allocation on the hot path).
-void ResetResult(const Pose& X_WA, PenetrationResult* result) {
-  ResetPenetrationResult(PdMode::kGeneralized, X_WA, result);
-}
-
 void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
              const PenetrationRequest& request, PdgQueryData* data, PenetrationResult* result,
              Clock::time_point t0) {
-  ResetResult(X_WA, result);
+  ResetPenetrationResult(PdMode::kGeneralized, X_WA, result);
   const double size = std::min(A.mesh().size(), B.mesh().size());
   const double eps = std::max(request.contact_epsilon, 1e-12) * size;
   const Mat3 R_WAb0 = X_WA.R * A.mass().X_MB.R;
@@ -822,16 +817,13 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
 void ComputePdg(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
                 const PenetrationRequest& request, PdgQueryData* data, PenetrationResult* result) {
   const auto t0 = Clock::now();
-  if (!X_WA.R.allFinite() || !X_WA.t.allFinite() || !X_WB.R.allFinite() || !X_WB.t.allFinite()) {
-    ResetResult(X_WA, result);
-    result->status = PdStatus::kFailed;
-    result->failure = "non-finite pose (probe or scene body)";
+  if (FailOnNonFinitePoses(PdMode::kGeneralized, X_WA, X_WB, result)) {
     result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
     return;
   }
   if (const auto& I = request.principal_inertia_over_mass;
       I && !(I->allFinite() && (I->array() > 0).all())) {
-    ResetResult(X_WA, result);
+    ResetPenetrationResult(PdMode::kGeneralized, X_WA, result);
     result->status = PdStatus::kFailed;
     result->failure = "request.principal_inertia_over_mass: every entry must be finite and > 0";
     result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();

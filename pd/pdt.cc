@@ -50,6 +50,16 @@ void ResetPenetrationResult(PdMode mode, const Pose& X_WA, PenetrationResult* re
   result->X_WA_result = X_WA;
 }
 
+bool FailOnNonFinitePoses(PdMode mode, const Pose& X_WA, const Pose& X_WB,
+                          PenetrationResult* result) {
+  if (X_WA.R.allFinite() && X_WA.t.allFinite() && X_WB.R.allFinite() && X_WB.t.allFinite()) {
+    return false;
+  }
+  ResetPenetrationResult(mode, X_WA, result);  // status kFailed
+  result->failure = "non-finite pose (probe or scene body)";
+  return true;
+}
+
 PdQueryData::PdQueryData() {
   // Generous first sizes so typical sessions never grow them; they still
   // grow (once) if a query needs more.
@@ -672,11 +682,9 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
 void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
                 const PenetrationRequest& request, PdQueryData* data, PenetrationResult* result) {
   const auto t0 = Clock::now();
-  if (!X_WA.R.allFinite() || !X_WA.t.allFinite() || !X_WB.R.allFinite() || !X_WB.t.allFinite()) {
-    ResetPenetrationResult(PdMode::kTranslational, X_WA, result);
-    result->failure = "non-finite pose (probe or scene body)";
+  if (FailOnNonFinitePoses(PdMode::kTranslational, X_WA, X_WB, result)) {
     result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
-    return;  // status kFailed
+    return;
   }
   // Work in B's frame: the answer then depends only on the relative pose, so
   // a common rigid motion of probe and scene moves the answer with it (up to

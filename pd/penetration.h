@@ -159,4 +159,10 @@ struct PenetrationResult {
 /// reused result allocates nothing.
 void ResetPenetrationResult(PdMode mode, const Pose& X_WA, PenetrationResult* result);
 
+/// For PDt and PDg: true, with `result` reset to a failed answer of `mode`
+/// saying "non-finite pose (probe or scene body)", when either pose holds a
+/// NaN or an infinity; false (and `result` untouched) otherwise.
+bool FailOnNonFinitePoses(PdMode mode, const Pose& X_WA, const Pose& X_WB,
+                          PenetrationResult* result);
+
 }  // namespace hapticpd::pd

@@ -275,6 +275,13 @@ TEST(PdtHardCases, NonFinitePoseFailsNamingIt) {
       EXPECT_EQ(r.failure, "non-finite pose (probe or scene body)");
       EXPECT_EQ(r.ccd_queries, 0);
       EXPECT_EQ(r.depth, 0);
+      // PDg says the same (the same check).
+      PdgQueryData dg;
+      PenetrationResult rg;
+      ComputePdg(*A, X_WA, *B, X_WB, PenetrationRequest{}, &dg, &rg);
+      EXPECT_EQ(rg.status, PdStatus::kFailed);
+      EXPECT_EQ(rg.mode, PdMode::kGeneralized);
+      EXPECT_EQ(rg.failure, "non-finite pose (probe or scene body)");
     }
   }
 }
