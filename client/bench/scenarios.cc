@@ -283,8 +283,10 @@ std::string Where(const std::string& models_dir) {
 }
 }  // namespace
 
-std::vector<Benchmark> BuildBenchmarks(const std::string& models_dir, bool tiny) {
+std::vector<Benchmark> BuildBenchmarks(const std::string& models_dir, bool tiny,
+                                       const std::string& only) {
   std::vector<Benchmark> out;
+  auto wanted = [&](const char* name) { return only.empty() || only == name; };
   const std::filesystem::path dir(models_dir);
   auto shared = [&](const char* name) -> std::filesystem::path {
     const auto p = dir / name;
@@ -300,7 +302,7 @@ std::vector<Benchmark> BuildBenchmarks(const std::string& models_dir, bool tiny)
     if (!note.empty()) b->notes.push_back(note);
   };
 
-  {
+  if (wanted("stick-bunny")) {
     Benchmark b;
     b.name = "stick-bunny";
     b.probe_name = "stick";
@@ -322,7 +324,7 @@ std::vector<Benchmark> BuildBenchmarks(const std::string& models_dir, bool tiny)
     b.slide = 0.015;
     out.push_back(std::move(b));
   }
-  {
+  if (wanted("spoon-cup")) {
     Benchmark b;
     b.name = "spoon-cup";
     b.probe_name = "spoon";
@@ -334,7 +336,7 @@ std::vector<Benchmark> BuildBenchmarks(const std::string& models_dir, bool tiny)
     b.slide = 0.006;
     out.push_back(std::move(b));
   }
-  {
+  if (wanted("hammer-beast20k")) {
     Benchmark b;
     b.name = "hammer-beast20k";
     b.probe_name = "hammer";

@@ -105,8 +105,10 @@ const char* PhaseName(int phase);
 // Setup
 
 /// The three benchmarks (stick-bunny, spoon-cup, hammer-beast20k), models
-/// from `models_dir` where present, without trajectories (MakeTrajectory).
-std::vector<Benchmark> BuildBenchmarks(const std::string& models_dir, bool tiny = false);
+/// from `models_dir` where present, without trajectories (MakeTrajectory);
+/// with `only`, just the benchmark of that name (none if no such name).
+std::vector<Benchmark> BuildBenchmarks(const std::string& models_dir, bool tiny = false,
+                                       const std::string& only = "");
 
 // ---------------------------------------------------------------------------
 // Replay

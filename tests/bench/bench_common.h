@@ -98,14 +98,10 @@ inline bool StartRun(int argc, char** argv, const char* program, const char* mod
   run->args.models = models;
   run->args.csv = std::string(program) + ".csv";
   if (!ParseBenchArgs(argc, argv, program, &run->args)) return false;
-  run->benchmarks = BuildBenchmarks(run->args.models);
-  if (!run->args.benchmark.empty()) {
-    std::erase_if(run->benchmarks,
-                  [&](const Benchmark& b) { return b.name != run->args.benchmark; });
-    if (run->benchmarks.empty()) {
-      std::cerr << program << ": no benchmark named '" << run->args.benchmark << "'\n";
-      return false;
-    }
+  run->benchmarks = BuildBenchmarks(run->args.models, false, run->args.benchmark);
+  if (run->benchmarks.empty()) {
+    std::cerr << program << ": no benchmark named '" << run->args.benchmark << "'\n";
+    return false;
   }
   if (!run->args.frames_csv.empty()) {
     run->per_frame.open(run->args.frames_csv);
