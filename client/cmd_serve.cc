@@ -131,8 +131,9 @@ void RegisterServe(CLI::App& app) {
       ->check(CLI::Range(std::size_t{1}, std::size_t{1} << 22))
       ->capture_default_str();
   cmd->add_option("--idle-timeout", s.limits.idle_timeout_s,
-                  "Seconds: a device session that sends nothing for this long, or an observer "
-                  "whose write has not completed for this long, is ended (0: never)")
+                  "Seconds: a device session that sends nothing for this long after its last "
+                  "message or the server's last answer, or an observer whose write has not "
+                  "completed for this long, is ended (0: never)")
       ->check(CLI::Range(0.0, 86400.0))
       ->capture_default_str();
   cmd->add_option("--keepalive", s.limits.keepalive_time_s,

@@ -38,7 +38,9 @@ struct Limits {
   /// it): bounds the patches' size and the client's memory.
   std::size_t max_patch_triangles = 8192;
 
-  /// A device session that sends no message for this long ends with
+  /// A device session that sends no message for this long (counted from
+  /// its last message or the server's last answer, whichever is later, so
+  /// a slow answer does not count against the client) ends with
   /// DEADLINE_EXCEEDED, and an observer whose write has not completed for
   /// this long is cancelled: either frees its slot. Behind a load balancer
   /// (where keepalive pings stop at the balancer) this is what frees the

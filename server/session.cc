@@ -89,7 +89,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
     bool telemetry = false;
     {
       std::lock_guard lock(mb_mu_);
-      last_rx_ns_ = rx;
+      idle_since_ns_ = std::max(idle_since_ns_, rx);
       if (req_.has_hello()) {
         if (hello_received_) {
           bad = InvalidArgument("hello", "sent twice (send it once, first)");
@@ -305,7 +305,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   }
 
   /// Waits until `ready` (under mb_mu_), a stop, or the idle timeout since
-  /// the client's last message. False when the caller must return *end.
+  /// idle_since_ns_. False when the caller must return *end.
   template <class Ready>
   bool WaitClient(std::unique_lock<std::mutex>& lock, Ready ready, grpc::Status* end) {
     const double idle_s = core_->limits.idle_timeout_s;
@@ -320,7 +320,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
         continue;
       }
       const auto idle = std::chrono::nanoseconds(static_cast<std::int64_t>(idle_s * 1e9));
-      const std::int64_t deadline_ns = last_rx_ns_ + idle.count();
+      const std::int64_t deadline_ns = idle_since_ns_ + idle.count();
       if (NowNs() >= deadline_ns) {
         idle_ = true;
         core_->stats.sessions_idle_ended.fetch_add(1, std::memory_order_relaxed);
@@ -332,6 +332,14 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       }
       mb_cv_.wait_for(lock, std::chrono::nanoseconds(deadline_ns - NowNs()));
     }
+  }
+
+  /// The server has answered (the welcome or an update): the client's idle
+  /// time starts now, not at the message it answered.
+  void Answered() {
+    const std::int64_t now = NowNs();
+    std::lock_guard lock(mb_mu_);
+    idle_since_ns_ = std::max(idle_since_ns_, now);
   }
 
   /// Waits for the hello or a stop; false on stop.
@@ -450,6 +458,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
       return stop_status_;
     }
     if (auto s = Hello(); !s.ok()) return s;
+    Answered();
     v1::CoupleResponse msg;
     v1::CoupleResponse patch_msg;
     auto next_allowed = std::chrono::steady_clock::now();
@@ -482,6 +491,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
         next_allowed = std::chrono::steady_clock::now() + worker_pd_.min_period();
       Compute(p, superseded, &msg);
       Send(&msg);
+      Answered();
       if (worker_pd_.patches_enabled() && !PatchOutstanding() &&
           worker_pd_.Patch(p, patch_msg.mutable_patch())) {
         SendPatch(&patch_msg);
@@ -508,9 +518,12 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   MailPose pose_;
   std::uint32_t superseded_ = 0;
   bool have_last_seq_ = false;
-  std::int64_t last_rx_ns_ = NowNs();  ///< the client's last message (the idle timeout)
-  bool idle_ = false;                  ///< the session ends for the idle timeout
-  bool done_ = false;                  ///< OnDone has run
+  /// The idle timeout counts from here: the client's last message or the
+  /// end of the server's last answer, whichever is later. A client that
+  /// waits for a slow answer before it sends again is not idle.
+  std::int64_t idle_since_ns_ = NowNs();
+  bool idle_ = false;  ///< the session ends for the idle timeout
+  bool done_ = false;  ///< OnDone has run
   std::uint64_t last_seq_ = 0;
   std::uint64_t stale_poses_ = 0;
   std::uint64_t last_telemetry_seq_ = 0;  ///< the reader's own (reads never overlap)

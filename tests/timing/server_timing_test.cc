@@ -90,6 +90,32 @@ TEST(ServerTiming, SessionThatKeepsSendingIsNotEndedByTheIdleTimeout) {
   s.ExpectCleanEnd();
 }
 
+TEST(ServerTiming, TheServersOwnWaitBeforeAnAnswerIsNotTheClientsIdleTime) {
+  // The client asks for at most 2 answers/s and sends each pose as soon as
+  // the previous answer arrives, so the server holds every pose after the
+  // first for up to 0.5 s before it answers: longer than the 0.3 s idle
+  // timeout. The idle time counts from the server's answer, not from the
+  // pose it answered; counted from the pose, the worker finds the deadline
+  // passed as soon as it has sent the answer, before the client can reply.
+  server::ServerOptions opt;
+  opt.limits.idle_timeout_s = 0.3;
+  ServerHarness h(Transport::kTcp, opt);
+  auto haptics = h.Haptics();
+  Session s(*haptics);
+  v1::Hello hello = Session::DefaultHello();
+  hello.set_max_rate_hz(2);
+  ASSERT_TRUE(s.Open(hello).ok());
+  const auto t0 = Clock::now();
+  for (std::uint64_t k = 1; k <= 4; ++k) {
+    ASSERT_TRUE(s.Send(k, MakePose(0, 0, 0.2)));
+    ASSERT_TRUE(s.Next()) << "ended after " << k << " poses: " << s.Finish().error_message();
+  }
+  // The throttle did hold the answers (3 waits of about 0.5 s).
+  EXPECT_GE(Clock::now() - t0, std::chrono::milliseconds(1200));
+  EXPECT_EQ(h.server().counts().sessions_idle_ended, 0u);
+  s.ExpectCleanEnd();
+}
+
 /// `hapticpd couple` as a child process.
 pid_t SpawnCouple(int port) {
   const std::string server = "127.0.0.1:" + std::to_string(port);
