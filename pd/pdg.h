@@ -26,9 +26,10 @@
 // optimum, which is usually lower and occasionally higher than PDt's.
 //
 // Out-projection (a free pose back to the contact space towards q_o) is exact
-// translational CCD of the centre of mass at the rotation reached, and rigid
-// CCD (RigidCcd, conservative advancement) only when the rotation alone
-// separates the probe: see OutProject in pdg.cc for why (cost).
+// translational CCD of the centre of mass at the rotation reached, and a
+// rotation sweep (bisection with collision queries, then translational CCD)
+// only when the rotation alone separates the probe: see OutProject in pdg.cc
+// for why (cost).
 //
 // Result conventions (pd/penetration.h, mode kGeneralized):
 //   * depth = sqrt(sigma) (m), sigma (m^2);
