@@ -657,11 +657,15 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     // directions only: the full cold search (the one-shot and first-frame
     // answer) costs several times more, and the next frames carry on from
     // whatever this one finds.
+    // Only a PDt answer shallower than the start PDg already has can help:
+    // the search's sweeps start at that depth.
     if (basin_lost) {
       pdt_request.cold_start_directions =
           std::min(pdt_request.cold_start_directions, kColdStartDirections);
+      data->pdt.cold_search_bound = std::sqrt(best.sigma);
     }
     ComputePdt(A, X_WA, B, X_WB, pdt_request, &data->pdt, &data->pdt_result);
+    data->pdt.cold_search_bound = std::numeric_limits<double>::infinity();
     pdt_done = true;
     if (pdt.status == PdStatus::kPenetratingSolved ||
         pdt.status == PdStatus::kPenetratingCapReached) {

@@ -526,7 +526,8 @@ Vec3 LocalDirection(const Vec3& w, int j) {
 // collides drops the direction (nothing shallower lies that way), so most
 // directions cost one early-out collision test, the sweeps that run are
 // short, and a free start there also reaches free pockets that a sweep from
-// outside never meets. Leaves the answer in *best, its features in
+// outside never meets. With data.cold_search_bound every sweep starts at
+// that depth. Leaves the answer in *best, its features in
 // data.best_features; false when no direction reached a contact.
 bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
   PdQueryData& d = c.data;
@@ -535,13 +536,13 @@ bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
   const int local =
       count > 1 ? static_cast<int>(kColdLocalSpreads.size()) * kColdLocalDirections : 0;
   bool have_best = false;
-  double best_norm = std::numeric_limits<double>::infinity();
+  double best_norm = d.cold_search_bound;
   for (int k = 0; k < count + local; ++k) {
     if (k >= count && !have_best) break;
     const Vec3 u =
         k < count ? ColdDirection(fixed, k, count) : LocalDirection(best->normalized(), k - count);
     Vec3 x;
-    if (have_best) {
+    if (std::isfinite(best_norm)) {
       // Only a contact shallower than the best answer by the iteration's own
       // improvement tolerance is worth a refinement.
       const double reach = best_norm * (1 - c.request.improvement_tolerance);

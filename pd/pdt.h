@@ -10,6 +10,7 @@
 #pragma once
 
 #include <array>
+#include <limits>
 #include <vector>
 
 #include "pd/geometry_model.h"
@@ -70,6 +71,11 @@ class PdQueryData {
   std::vector<FeaturePair> cold_answer_features;
   /// Cold search: the features of the contact being refined, as swept.
   std::vector<FeaturePair> cold_contact_features;
+  /// Cold search: only answers shallower than this (m) are wanted; every
+  /// direction's sweep starts at this depth (a colliding start drops the
+  /// direction) instead of outside the bounding spheres. PDg sets it to the
+  /// depth of the start it already has for the query it runs PDt in.
+  double cold_search_bound = std::numeric_limits<double>::infinity();
 };
 
 /// Solves min |x|^2 subject to n_i . x >= b_i exactly (primal active set

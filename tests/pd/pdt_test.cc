@@ -160,6 +160,37 @@ TEST(PdtNonConvex, EveryAnswerIsAVerifiedContact) {
   });
 }
 
+// PdQueryData::cold_search_bound (what PDg sets when its own start is
+// known): the search only answers shallower than the bound, each a verified
+// contact, or fails; a bound above the unbounded answer mostly finds one.
+TEST(PdtNonConvex, ColdSearchBoundAnswersOnlyShallowerContacts) {
+  std::mt19937_64 rng(testing::TestSeed());
+  const int count = testing::TestCount(12);
+  int bounded = 0, found = 0;
+  ForEachPair(NonConvexCases(), [&](const ProbeAndScene& ps, const NonConvexCase& c) {
+    PdQueryData data;
+    PenetrationResult r0, r;
+    for (int i = 0; i < count; ++i) {
+      const Pose X_WA = NearSurfacePose(*ps.A, *ps.B, rng, c.spread);
+      data.cold_search_bound = std::numeric_limits<double>::infinity();
+      ComputePdt(*ps.A, X_WA, *ps.B, Pose::Identity(), ColdRequest(), &data, &r0);
+      if (r0.status == PdStatus::kSeparated || r0.status == PdStatus::kFailed) continue;
+      for (const double factor : {0.5, 1.5}) {
+        const double bound = factor * r0.depth;
+        data.cold_search_bound = bound;
+        ComputePdt(*ps.A, X_WA, *ps.B, Pose::Identity(), ColdRequest(), &data, &r);
+        data.cold_search_bound = std::numeric_limits<double>::infinity();
+        if (factor > 1) ++bounded;
+        if (r.status == PdStatus::kFailed) continue;
+        if (factor > 1) ++found;
+        EXPECT_LT(r.depth, bound) << c.name << " pose " << i << " bound " << factor << " x";
+        ExpectRealContact(ps.fa, ps.fb, Pose::Identity(), r);
+      }
+    }
+  });
+  EXPECT_GT(found, bounded / 2) << "a bound above the answer found " << found << " of " << bounded;
+}
+
 TEST(PdtNonConvex, SharedBunnyAnswersAreVerifiedContacts) {
   HAPTICPD_REQUIRE_MODEL(path, "stanford-bunny.obj");
   const ProbeAndScene ps(MakeModel(shapes::Stick()), MakeModel(LoadMesh(path.string())));
