@@ -618,6 +618,131 @@ bool Polish(PdgContext& c, Best* best) {
   }
 }
 
+// An iteration's QP answer X_star back to the contact space. Free:
+// out-project towards the query pose. In collision (the contact space curves
+// away): keep X_star's rotation and back off by translation along the mean
+// contact normal until free, then sweep back towards X_star (exact
+// translational CCD); failing that, back off from the best contact (along
+// the mean normal, else along the answer's motion) and sweep towards
+// X_star's centre of mass. True with the contact in *X_new.
+bool ReprojectQpAnswer(PdgContext& c, const Best& best, const Pose& X_star, Pose* X_new) {
+  const Sweep from_star = OutProjectFrom(c, X_star, X_new);
+  if (from_star != Sweep::kStartColliding) return from_star == Sweep::kHit;
+  Vec3 n_avg = Vec3::Zero();
+  for (const FeaturePair& f : c.data.best_features) n_avg += f.n_W;
+  const bool have_normal = n_avg.norm() > 1e-12;
+  Pose X_end;
+  if (have_normal) {
+    n_avg.normalize();
+    for (double scale : {0.5, 2.0}) {
+      const double back = scale * std::sqrt(best.sigma) + 2 * c.eps;
+      const Pose X_back{X_star.R, X_star.t + n_avg * back};
+      const Sweep s = SweepTranslationFrom(c, X_back, X_star, X_new, &X_end);
+      if (s == Sweep::kHit) return true;
+      if (s == Sweep::kMiss) break;
+    }
+  }
+  Sweep s = Sweep::kStartColliding;
+  if (have_normal) {
+    Pose X_back = best.X;
+    X_back.t += n_avg * (2 * c.eps);
+    s = SweepTranslationFrom(c, X_back, X_star, X_new, &X_end);
+  }
+  if (s == Sweep::kStartColliding) {
+    const double motion = MotionLength(c, c.X_WA, best.X);
+    const Pose X_back = AlongAnswer(c, best.X, 1 + 2 * c.eps / std::max(motion, 1e-300));
+    s = SweepTranslationFrom(c, X_back, X_star, X_new, &X_end);
+  }
+  return s == Sweep::kHit || (s == Sweep::kMiss && OutProject(c, X_end, X_new));
+}
+
+// Steps 2-5, iterated from the free start *best: linearised contact space,
+// exact QP, re-projection; *best improves in place. A contact that brings no
+// improvement still tells where the contact space curves away: its rows join
+// the best contact's for up to two retries. Returns kPenetratingSolved at a
+// local optimum, kPenetratingCapReached at the iteration cap or the work
+// budget.
+PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations) {
+  PdStatus status = PdStatus::kPenetratingCapReached;
+  bool have_extra = false;
+  Pose X_extra;
+  Vec6 z_extra = Vec6::Zero();
+  int retries = 0;
+  // The work budget: box and triangle pair tests of this query's traversals
+  // (PDt's inside it included) since the iterations began.
+  auto work = [&] {
+    return c.data.scratch.node_tests + c.data.scratch.triangle_tests +
+           c.data.pdt.scratch.node_tests + c.data.pdt.scratch.triangle_tests;
+  };
+  const std::uint64_t work_start = work();
+  std::uint64_t work_it = work_start, costliest = 0;
+  for (int it = 0; it < c.request.max_iterations; ++it) {
+    const std::uint64_t now = work();
+    costliest = std::max(costliest, now - work_it);
+    work_it = now;
+    if (c.request.pdg_iteration_budget > 0 &&
+        now - work_start + costliest > c.request.pdg_iteration_budget) {
+      break;  // the next iteration would likely overrun: cap reached
+    }
+    *iterations = it + 1;
+    if (best->sigma <= 0) {
+      status = PdStatus::kPenetratingSolved;
+      break;
+    }
+    c.data.qp.Clear();
+    AddConstraints(c, c.data.best_features, best->X, best->z);
+    if (have_extra) AddConstraints(c, c.data.extra_features, X_extra, z_extra);
+    if (c.data.qp.size() == 0) {
+      status = PdStatus::kPenetratingSolved;
+      break;
+    }
+    Vec6 z_star;
+    if (c.data.qp.Solve(c.metric, &z_star) != QpStatus::kSolved) {
+      status = PdStatus::kPenetratingSolved;  // no better point in the local contact space
+      break;
+    }
+    const double sigma_star = Sigma(c, z_star);
+    if (sigma_star >= best->sigma * (1 - c.request.improvement_tolerance)) {
+      status = PdStatus::kPenetratingSolved;  // best is optimal in its contact space
+      break;
+    }
+    const Pose X_star = At(c, z_star);
+    Pose X_new;
+    const bool found = ReprojectQpAnswer(c, *best, X_star, &X_new);
+    if (!found || Sigma(c, Z(c, X_new)) >= best->sigma * (1 - c.request.improvement_tolerance)) {
+      if (found && retries < 2 && !c.data.ccd.features.empty()) {
+        ++retries;
+        have_extra = true;
+        X_extra = X_new;
+        z_extra = Z(c, X_new);
+        c.data.extra_features = c.data.ccd.features;
+        continue;
+      }
+      status = PdStatus::kPenetratingSolved;  // no improvement: local optimum
+      break;
+    }
+    AcceptSwept(c, X_new, best);
+  }
+  return status;
+}
+
+// The answer `best` into *result (in the frame PdgCore works in).
+void WriteAnswer(const PdgContext& c, const Best& best, PenetrationResult* result) {
+  result->sigma = best.sigma;
+  result->depth = std::sqrt(best.sigma);
+  result->translation_W = c.R_WAb0 * best.z.tail<3>();
+  result->X_WA_result = best.X;
+  // Angle and axis from the whole quaternion of the relative rotation: from
+  // z's vector part alone (w = sqrt(1 - |v|^2)) the angle near 180 degrees
+  // is only good to about 1e-8.
+  const Eigen::AngleAxisd aa(Quat(best.X.R * c.X_WA.R.transpose()));
+  result->rotation_angle = aa.angle();
+  if (aa.angle() > 0) result->rotation_axis_W = aa.axis();
+  for (const FeaturePair& f : c.data.best_features) {
+    result->features.push_back({f.type, f.a, f.b, f.p_WB, f.n_W});
+  }
+}
+
 void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
              const PenetrationRequest& request, PdgQueryData* data, PenetrationResult* result,
              Clock::time_point t0) {
@@ -701,111 +826,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     return;
   }
 
-  // 2-5. Iterate: linearised contact space, exact QP, re-projection. A
-  // contact that brings no improvement still tells where the contact space
-  // curves away: its rows join the best contact's for up to two retries.
-  PdStatus status = PdStatus::kPenetratingCapReached;
-  bool have_extra = false;
-  Pose X_extra;
-  Vec6 z_extra = Vec6::Zero();
-  int retries = 0;
-  // The work budget: box and triangle pair tests of this query's traversals
-  // (PDt's inside it included) since the iterations began.
-  auto work = [&] {
-    return data->scratch.node_tests + data->scratch.triangle_tests + data->pdt.scratch.node_tests +
-           data->pdt.scratch.triangle_tests;
-  };
-  const std::uint64_t work_start = work();
-  std::uint64_t work_it = work_start, costliest = 0;
-  for (int it = 0; it < request.max_iterations; ++it) {
-    const std::uint64_t now = work();
-    costliest = std::max(costliest, now - work_it);
-    work_it = now;
-    if (request.pdg_iteration_budget > 0 &&
-        now - work_start + costliest > request.pdg_iteration_budget) {
-      break;  // the next iteration would likely overrun: cap reached
-    }
-    result->iterations = it + 1;
-    if (best.sigma <= 0) {
-      status = PdStatus::kPenetratingSolved;
-      break;
-    }
-    data->qp.Clear();
-    AddConstraints(c, data->best_features, best.X, best.z);
-    if (have_extra) AddConstraints(c, data->extra_features, X_extra, z_extra);
-    if (data->qp.size() == 0) {
-      status = PdStatus::kPenetratingSolved;
-      break;
-    }
-    Vec6 z_star;
-    if (data->qp.Solve(c.metric, &z_star) != QpStatus::kSolved) {
-      status = PdStatus::kPenetratingSolved;  // no better point in the local contact space
-      break;
-    }
-    const double sigma_star = Sigma(c, z_star);
-    if (sigma_star >= best.sigma * (1 - request.improvement_tolerance)) {
-      status = PdStatus::kPenetratingSolved;  // best is optimal in its contact space
-      break;
-    }
-    const Pose X_star = At(c, z_star);
-    Pose X_new;
-    bool found = false;
-    // Free: out-project again towards the query pose.
-    const Sweep from_star = OutProjectFrom(c, X_star, &X_new);
-    if (from_star != Sweep::kStartColliding) {
-      found = from_star == Sweep::kHit;
-    } else {
-      // In collision (the contact space curves away): keep z*'s rotation and
-      // back off by translation along the mean contact normal until free,
-      // then sweep back towards z* (exact translational CCD). Failing that,
-      // back off from the best contact and sweep towards z*'s centre of mass.
-      Vec3 n_avg = Vec3::Zero();
-      for (const FeaturePair& f : data->best_features) n_avg += f.n_W;
-      const bool have_normal = n_avg.norm() > 1e-12;
-      if (have_normal) {
-        n_avg.normalize();
-        for (double scale : {0.5, 2.0}) {
-          const double back = scale * std::sqrt(best.sigma) + 2 * eps;
-          const Pose X_back{X_star.R, X_star.t + n_avg * back};
-          Pose X_end;
-          const Sweep s = SweepTranslationFrom(c, X_back, X_star, &X_new, &X_end);
-          if (s != Sweep::kStartColliding) {
-            found = s == Sweep::kHit;
-            break;
-          }
-        }
-      }
-      if (!found) {
-        // Backed off along the mean normal, else along the answer's motion.
-        Pose X_end;
-        Sweep s = Sweep::kStartColliding;
-        if (have_normal) {
-          Pose X_back = best.X;
-          X_back.t += n_avg * (2 * eps);
-          s = SweepTranslationFrom(c, X_back, X_star, &X_new, &X_end);
-        }
-        if (s == Sweep::kStartColliding) {
-          const double motion = MotionLength(c, X_WA, best.X);
-          const Pose X_back = AlongAnswer(c, best.X, 1 + 2 * eps / std::max(motion, 1e-300));
-          s = SweepTranslationFrom(c, X_back, X_star, &X_new, &X_end);
-        }
-        found = s == Sweep::kHit || (s == Sweep::kMiss && OutProject(c, X_end, &X_new));
-      }
-    }
-    if (!found || Sigma(c, Z(c, X_new)) >= best.sigma * (1 - request.improvement_tolerance)) {
-      if (found && retries < 2 && !data->ccd.features.empty()) {
-        ++retries;
-        have_extra = true;
-        X_extra = X_new;
-        z_extra = Z(c, X_new);
-        data->extra_features = data->ccd.features;
-        continue;
-      }
-      status = PdStatus::kPenetratingSolved;  // no improvement: local optimum
-      break;
-    }
-    AcceptSwept(c, X_new, &best);
-  }
+  const PdStatus status = IterateContactSpace(c, &best, &result->iterations);
 
   // Verified answer: a contact along its own motion; else the PDt answer.
   if (!Polish(c, &best)) {
@@ -816,19 +837,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     }
   }
 
-  result->sigma = best.sigma;
-  result->depth = std::sqrt(best.sigma);
-  result->translation_W = R_WAb0 * best.z.tail<3>();
-  result->X_WA_result = best.X;
-  // Angle and axis from the whole quaternion of the relative rotation: from
-  // z's vector part alone (w = sqrt(1 - |v|^2)) the angle near 180 degrees
-  // is only good to about 1e-8.
-  const Eigen::AngleAxisd aa(Quat(best.X.R * X_WA.R.transpose()));
-  result->rotation_angle = aa.angle();
-  if (aa.angle() > 0) result->rotation_axis_W = aa.axis();
-  for (const FeaturePair& f : data->best_features) {
-    result->features.push_back({f.type, f.a, f.b, f.p_WB, f.n_W});
-  }
+  WriteAnswer(c, best, result);
   if (request.use_coherence) data->Remember({X_WA, best.X, best.z, true, best.sigma});
   finish(status);
 }
