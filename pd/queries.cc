@@ -934,6 +934,109 @@ void CollectContactFeatures(const GeometryModel& A, const GeometryModel& B, cons
   result->features_truncated = pres.truncated;
 }
 
+// Each vertex's signed distance to the other triangle's plane at t = 0, and
+// whether it stays strictly on one side of that plane over [0, t_best] while
+// A's triangle moves by t d_B: a feature that stays on one side of the other
+// triangle's plane cannot touch it.
+struct SweptPlaneSides {
+  std::array<double, 3> sa{0, 0, 0}, sb{0, 0, 0};
+  std::array<bool, 3> a_side{false, false, false}, b_side{false, false, false};
+  double margin = 0;
+
+  /// False when A's whole triangle stays on one side of B's plane (no event
+  /// at all; sb and b_side are then not computed).
+  bool Compute(const TriB& ta, const Vec3& na, const TriB& tb, const Vec3& nb, const Vec3& d_B,
+               double t_best) {
+    margin = 1e-12 * (1.0 + tb.v[0].cwiseAbs().maxCoeff() + d_B.norm());
+    if (nb.squaredNorm() > 0) {
+      const double shift = t_best * nb.dot(d_B);
+      for (int k = 0; k < 3; ++k) {
+        sa[k] = nb.dot(ta.v[k] - tb.v[0]);
+        a_side[k] = StaysSide(sa[k], shift, margin);
+      }
+      if (a_side[0] && a_side[1] && a_side[2] && ((sa[0] > 0) == (sa[1] > 0)) &&
+          ((sa[1] > 0) == (sa[2] > 0))) {
+        return false;
+      }
+    }
+    if (na.squaredNorm() > 0) {
+      const double shift = -t_best * na.dot(d_B);
+      for (int k = 0; k < 3; ++k) {
+        sb[k] = na.dot(tb.v[k] - ta.v[0]);
+        b_side[k] = StaysSide(sb[k], shift, margin);
+      }
+    }
+    return true;
+  }
+};
+
+// The vertex-face and edge-edge events of one triangle pair, A's triangle
+// moving by t d_B, t in [0, *t_best]: features another triangle owns
+// (owned masks) and those `sides` rules out are skipped. An event lowers
+// *t_best (once `hit`, only a strictly earlier one); returns whether any
+// event is known, `hit` included.
+inline bool SweptPairEvents(const TriB& ta, std::uint8_t own_a, const TriB& tb, std::uint8_t own_b,
+                            const SweptPlaneSides& sides, const Vec3& d_B, bool hit,
+                            double* t_best) {
+  auto edge_stays = [](const std::array<bool, 3>& side, const std::array<double, 3>& sv, int i) {
+    const int j = (i + 1) % 3;
+    return side[i] && side[j] && ((sv[i] > 0) == (sv[j] > 0));
+  };
+  double t;
+  for (int k = 0; k < 3; ++k) {
+    if ((own_a & (1u << k)) && !sides.a_side[k] &&
+        internal::PointTriangleToi(ta.v[k], d_B, tb.v[0], tb.v[1], tb.v[2], *t_best, &t) &&
+        (!hit || t < *t_best)) {
+      *t_best = t;
+      hit = true;
+    }
+    if ((own_b & (1u << k)) && !sides.b_side[k] &&
+        internal::PointTriangleToi(tb.v[k], -d_B, ta.v[0], ta.v[1], ta.v[2], *t_best, &t) &&
+        (!hit || t < *t_best)) {
+      *t_best = t;
+      hit = true;
+    }
+  }
+  // Sweep-plane filter for edge pairs: edge a moving along d stays in
+  // the plane through it spanned by d, so edge b must reach that plane
+  // (and edge a the plane through edge b spanned by d). Both endpoints
+  // beyond it by more than a pad far above SegmentSegmentToi's contact
+  // tolerance (kContactTol times the coordinates' scale): no event.
+  double pad = -1;  // computed for the first edge pair that needs it
+  auto beyond = [&](const Vec3& p0, const Vec3& p1, const Vec3& q0, const Vec3& q1) {
+    const Vec3 m = (p1 - p0).cross(d_B);
+    const double mm = m.squaredNorm();
+    if (!(mm > 0)) return false;
+    const double s0 = m.dot(q0 - p0), s1 = m.dot(q1 - p0);
+    if ((s0 > 0) != (s1 > 0)) return false;
+    if (pad < 0) {
+      double scale = 0;
+      for (int k = 0; k < 3; ++k) {
+        scale = std::max({scale, ta.v[k].cwiseAbs().maxCoeff(), tb.v[k].cwiseAbs().maxCoeff()});
+      }
+      pad = 1e3 * internal::kContactTol * scale;
+    }
+    const double s = std::min(std::abs(s0), std::abs(s1));
+    return s * s > pad * pad * mm;
+  };
+  for (int i = 0; i < 3; ++i) {
+    if (!(own_a & (1u << (3 + i))) || edge_stays(sides.a_side, sides.sa, i)) continue;
+    for (int j = 0; j < 3; ++j) {
+      if (!(own_b & (1u << (3 + j))) || edge_stays(sides.b_side, sides.sb, j)) continue;
+      const Vec3 &a0 = ta.v[i], &a1 = ta.v[(i + 1) % 3];
+      const Vec3 &b0 = tb.v[j], &b1 = tb.v[(j + 1) % 3];
+      if (beyond(a0, a1, b0, b1) || beyond(b0, b1, a0, a1)) continue;
+      if (internal::SegmentSegmentToi(ta.v[i], ta.v[(i + 1) % 3], d_B, tb.v[j], tb.v[(j + 1) % 3],
+                                      *t_best, &t) &&
+          (!hit || t < *t_best)) {
+        *t_best = t;
+        hit = true;
+      }
+    }
+  }
+  return hit;
+}
+
 }  // namespace
 
 bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W,
@@ -1029,103 +1132,24 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
           }
         }
         if (feature_tol > 0) visited.push_back({key, fa, fb});
-        const std::uint8_t own_a = ma.owned_mask(fa);
-        const std::uint8_t own_b = mb.owned_mask(fb);
-        // Plane filters: a feature that stays strictly on one side of the
-        // other triangle's plane over [0, t_best] cannot touch it.
-        const Vec3& nb = mb.face_normals()[fb];
-        const Vec3& na = a_tris.Normal(fa);
-        const double margin = 1e-12 * (1.0 + tb.v[0].cwiseAbs().maxCoeff() + d_B.norm());
-        std::array<bool, 3> a_side{false, false, false}, b_side{false, false, false};
-        std::array<double, 3> sa{0, 0, 0}, sb{0, 0, 0};
-        if (nb.squaredNorm() > 0) {
-          const double shift = t_best * nb.dot(d_B);
-          for (int k = 0; k < 3; ++k) {
-            sa[k] = nb.dot(ta.v[k] - tb.v[0]);
-            a_side[k] = StaysSide(sa[k], shift, margin);
-          }
-          if (a_side[0] && a_side[1] && a_side[2] && ((sa[0] > 0) == (sa[1] > 0)) &&
-              ((sa[1] > 0) == (sa[2] > 0))) {
-            return true;  // A's triangle never reaches B's plane: no event at all
-          }
+        SweptPlaneSides sides;
+        if (!sides.Compute(ta, a_tris.Normal(fa), tb, mb.face_normals()[fb], d_B, t_best)) {
+          return true;  // A's triangle never reaches B's plane: no event at all
         }
         // Pairs whose boxes overlap at t = 0 (key 0) come first in the
         // best-first order and are all met: the start check lives here
-        // (after the plane filter above: a triangle strictly on one side of
-        // the other's plane at t = 0 does not cross it).
-        if (na.squaredNorm() > 0) {
-          const double shift = -t_best * na.dot(d_B);
-          for (int k = 0; k < 3; ++k) {
-            sb[k] = na.dot(tb.v[k] - ta.v[0]);
-            b_side[k] = StaysSide(sb[k], shift, margin);
-          }
-        }
-        // The same plane filters at t = 0 alone spare most start pairs the
-        // exact test.
-        if (request.check_start && key <= 0 && !AllBeyond(sa, margin) && !AllBeyond(sb, margin) &&
+        // (after the plane filter: a triangle strictly on one side of the
+        // other's plane at t = 0 does not cross it, which spares most start
+        // pairs the exact test).
+        if (request.check_start && key <= 0 && !AllBeyond(sides.sa, sides.margin) &&
+            !AllBeyond(sides.sb, sides.margin) &&
             internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
           start_crossing = true;
           RememberWitness(A, B, fa, fb, scratch);
           return false;
         }
-        auto edge_stays = [](const std::array<bool, 3>& side, const std::array<double, 3>& sv,
-                             int i) {
-          const int j = (i + 1) % 3;
-          return side[i] && side[j] && ((sv[i] > 0) == (sv[j] > 0));
-        };
-        double t;
-        for (int k = 0; k < 3; ++k) {
-          if ((own_a & (1u << k)) && !a_side[k] &&
-              internal::PointTriangleToi(ta.v[k], d_B, tb.v[0], tb.v[1], tb.v[2], t_best, &t) &&
-              (!hit || t < t_best)) {
-            t_best = t;
-            hit = true;
-          }
-          if ((own_b & (1u << k)) && !b_side[k] &&
-              internal::PointTriangleToi(tb.v[k], -d_B, ta.v[0], ta.v[1], ta.v[2], t_best, &t) &&
-              (!hit || t < t_best)) {
-            t_best = t;
-            hit = true;
-          }
-        }
-        // Sweep-plane filter for edge pairs: edge a moving along d stays in
-        // the plane through it spanned by d, so edge b must reach that plane
-        // (and edge a the plane through edge b spanned by d). Both endpoints
-        // beyond it by more than a pad far above SegmentSegmentToi's contact
-        // tolerance (kContactTol times the coordinates' scale): no event.
-        double pad = -1;  // computed for the first edge pair that needs it
-        auto beyond = [&](const Vec3& p0, const Vec3& p1, const Vec3& q0, const Vec3& q1) {
-          const Vec3 m = (p1 - p0).cross(d_B);
-          const double mm = m.squaredNorm();
-          if (!(mm > 0)) return false;
-          const double s0 = m.dot(q0 - p0), s1 = m.dot(q1 - p0);
-          if ((s0 > 0) != (s1 > 0)) return false;
-          if (pad < 0) {
-            double scale = 0;
-            for (int k = 0; k < 3; ++k) {
-              scale =
-                  std::max({scale, ta.v[k].cwiseAbs().maxCoeff(), tb.v[k].cwiseAbs().maxCoeff()});
-            }
-            pad = 1e3 * internal::kContactTol * scale;
-          }
-          const double s = std::min(std::abs(s0), std::abs(s1));
-          return s * s > pad * pad * mm;
-        };
-        for (int i = 0; i < 3; ++i) {
-          if (!(own_a & (1u << (3 + i))) || edge_stays(a_side, sa, i)) continue;
-          for (int j = 0; j < 3; ++j) {
-            if (!(own_b & (1u << (3 + j))) || edge_stays(b_side, sb, j)) continue;
-            const Vec3 &a0 = ta.v[i], &a1 = ta.v[(i + 1) % 3];
-            const Vec3 &b0 = tb.v[j], &b1 = tb.v[(j + 1) % 3];
-            if (beyond(a0, a1, b0, b1) || beyond(b0, b1, a0, a1)) continue;
-            if (internal::SegmentSegmentToi(ta.v[i], ta.v[(i + 1) % 3], d_B, tb.v[j],
-                                            tb.v[(j + 1) % 3], t_best, &t) &&
-                (!hit || t < t_best)) {
-              t_best = t;
-              hit = true;
-            }
-          }
-        }
+        hit =
+            SweptPairEvents(ta, ma.owned_mask(fa), tb, mb.owned_mask(fb), sides, d_B, hit, &t_best);
         // Contact at t = 0 ends the search, unless features are wanted or
         // the start is being checked: then every pair that can touch at
         // t = 0 must still be met.
