@@ -166,6 +166,16 @@ Mesh Mesh::FromArrays(std::vector<Vec3> vertices, std::vector<Triangle> triangle
 }
 
 void Mesh::Build(const MeshOptions& options) {
+  CheckSizesAndVertices(options);
+  DropRepeatedVertexTriangles(options);
+  ComputeFaceNormals(options);
+  BuildEdges();
+  AssignFeatureOwners();
+  ComputeBounds();
+}
+
+// Counts against the limits, then every vertex finite.
+void Mesh::CheckSizesAndVertices(const MeshOptions& options) const {
   const std::string& src = source_;
   if (vertices_.size() > options.max_vertices) {
     throw MeshError(src + ": " + std::to_string(vertices_.size()) +
@@ -186,6 +196,12 @@ void Mesh::Build(const MeshOptions& options) {
       throw MeshError(os.str());
     }
   }
+}
+
+// Indices in range; triangles repeating a vertex index dropped (or refused).
+void Mesh::DropRepeatedVertexTriangles(const MeshOptions& options) {
+  const std::string& src = source_;
+  const auto nv = static_cast<Index>(vertices_.size());
   std::vector<Triangle> kept;
   kept.reserve(triangles_.size());
   for (std::size_t f = 0; f < triangles_.size(); ++f) {
@@ -211,7 +227,11 @@ void Mesh::Build(const MeshOptions& options) {
   }
   triangles_ = std::move(kept);
   if (triangles_.empty()) throw MeshError(src + ": the mesh has no non-degenerate triangles");
+}
 
+// Unit normals; zero-area triangles keep a zero normal (or are refused).
+void Mesh::ComputeFaceNormals(const MeshOptions& options) {
+  const std::string& src = source_;
   const auto nf = static_cast<Index>(triangles_.size());
   face_normals_.resize(nf);
   int first_zero_area = -1;
@@ -240,8 +260,12 @@ void Mesh::Build(const MeshOptions& options) {
                            " zero-area triangle(s) kept (first: triangle " +
                            std::to_string(first_zero_area) + ")");
   }
+}
 
-  // Edge adjacency: sort directed half-edges by their undirected key.
+// Edge adjacency: sort directed half-edges by their undirected key; counts
+// boundary, non-manifold and misoriented edges.
+void Mesh::BuildEdges() {
+  const auto nf = static_cast<Index>(triangles_.size());
   struct HalfEdge {
     Index a, b;  // a < b
     Index face;
@@ -294,8 +318,11 @@ void Mesh::Build(const MeshOptions& options) {
     diagnostics_.push_back("inconsistent orientation: " + std::to_string(misoriented_edges_) +
                            " edge(s) traversed the same way by both triangles");
   }
+}
 
-  // Feature ownership: the first face (lowest index) touching a vertex/edge.
+// Feature ownership: the first face (lowest index) touching a vertex/edge.
+void Mesh::AssignFeatureOwners() {
+  const auto nf = static_cast<Index>(triangles_.size());
   vertex_owner_.assign(vertices_.size(), -1);
   owned_mask_.assign(nf, 0);
   for (Index f = 0; f < nf; ++f) {
@@ -312,7 +339,11 @@ void Mesh::Build(const MeshOptions& options) {
   }
   // Faces are sorted by index inside each edge group, so f[0] is the lowest;
   // a non-manifold edge's extra faces never own it.
+}
 
+// Bounds and bounding radius of the vertices some triangle uses.
+void Mesh::ComputeBounds() {
+  const auto nv = static_cast<Index>(vertices_.size());
   bounds_ = Aabb{};
   for (Index v = 0; v < nv; ++v) {
     if (vertex_owner_[v] >= 0) bounds_.Extend(vertices_[v]);

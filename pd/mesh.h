@@ -120,6 +120,13 @@ class Mesh {
 
  private:
   void Build(const MeshOptions& options);
+  // Build's stages, in order.
+  void CheckSizesAndVertices(const MeshOptions& options) const;
+  void DropRepeatedVertexTriangles(const MeshOptions& options);
+  void ComputeFaceNormals(const MeshOptions& options);
+  void BuildEdges();
+  void AssignFeatureOwners();
+  void ComputeBounds();
 
   std::string source_;
   std::vector<Vec3> vertices_;
