@@ -277,26 +277,28 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// One query's fixed data. The working frame is B's (X_WB = identity), as in
-// PDt, so the answer depends only on the relative pose.
+// One query's fixed data. The core works in B's frame, as PDt's does: B sits
+// at the identity (kX_BB), the answer depends only on the relative pose, and
+// every pose, point and normal below is in B's frame (the queries' "W" is B).
 struct PdgContext {
   const GeometryModel& A;
-  const Pose& X_WA;  // query pose q_o
+  const Pose& X_BA;  // query pose q_o
   const GeometryModel& B;
-  const Pose& X_WB;
   const PenetrationRequest& request;
   PdgQueryData& data;
   double eps;   // contact tolerance (m): feature pairs closer than this are contacts
   Vec6 metric;  // diagonal of M
-  Mat3 R_WAb0;  // body frame at the query pose
+  Mat3 R_BAb0;  // body frame at the query pose
   Vec3 c0;      // centre of mass at the query pose
 };
 
+const Pose kX_BB = Pose::Identity();
+
 double Sigma(const PdgContext& c, const Vec6& z) { return z.cwiseProduct(z).dot(c.metric); }
 
-Vec6 Z(const PdgContext& c, const Pose& X) { return RelativeConfiguration(c.A.mass(), c.X_WA, X); }
+Vec6 Z(const PdgContext& c, const Pose& X) { return RelativeConfiguration(c.A.mass(), c.X_BA, X); }
 
-Pose At(const PdgContext& c, const Vec6& z) { return PoseAtConfiguration(c.A.mass(), c.X_WA, z); }
+Pose At(const PdgContext& c, const Vec6& z) { return PoseAtConfiguration(c.A.mass(), c.X_BA, z); }
 
 // Largest displacement of any point of A between two poses along the rigid
 // interpolating motion (bound): |delta c| + theta r_max.
@@ -307,7 +309,7 @@ double MotionLength(const PdgContext& c, const Pose& X0, const Pose& X1) {
 
 bool Colliding(PdgContext& c, const Pose& X) {
   CollisionRequest req;
-  return Collide(c.A, X, c.B, c.X_WB, req, &c.data.collision, &c.data.scratch);
+  return Collide(c.A, X, c.B, kX_BB, req, &c.data.collision, &c.data.scratch);
 }
 
 enum class Sweep : std::uint8_t { kStartColliding, kHit, kMiss };
@@ -327,7 +329,7 @@ Sweep SweepTranslationFrom(PdgContext& c, const Pose& X_from, const Pose& X_to, 
   req.feature_tolerance = c.eps;
   req.check_start = check_start;
   req.near_pairs = true;
-  if (TranslationalCcd(c.A, X_from, d, c.B, c.X_WB, req, &c.data.ccd, &c.data.scratch)) {
+  if (TranslationalCcd(c.A, X_from, d, c.B, kX_BB, req, &c.data.ccd, &c.data.scratch)) {
     *X_contact = c.data.ccd.X_WA_contact;
     return Sweep::kHit;
   }
@@ -355,7 +357,7 @@ bool SweepTranslation(PdgContext& c, const Pose& X_from, const Pose& X_to, Pose*
 // first crossing pair.
 bool SweepRotation(PdgContext& c, const Pose& X_from, Pose* X_contact) {
   const Vec3& p_AC = c.A.mass().p_MC;
-  const Pose X_to{c.X_WA.R, X_from.t + X_from.R * p_AC - c.X_WA.R * p_AC};
+  const Pose X_to{c.X_BA.R, X_from.t + X_from.R * p_AC - c.X_BA.R * p_AC};
   const double length = MotionLength(c, X_from, X_to);
   if (!(length > 0) || !Colliding(c, X_to)) return false;
   double lo = 0, hi = 1;
@@ -369,7 +371,7 @@ bool SweepRotation(PdgContext& c, const Pose& X_from, Pose* X_contact) {
   preq.tolerance = c.eps;
   ProximityResult pres;
   pres.pairs.swap(ccd.features);
-  Proximity(c.A, ccd.X_WA_contact, c.B, c.X_WB, preq, &pres, &c.data.scratch);
+  Proximity(c.A, ccd.X_WA_contact, c.B, kX_BB, preq, &pres, &c.data.scratch);
   ccd.features.swap(pres.pairs);
   if (ccd.features.empty()) return false;
   const FeaturePair* closest = &c.data.ccd.features.front();
@@ -381,7 +383,7 @@ bool SweepRotation(PdgContext& c, const Pose& X_from, Pose* X_contact) {
   CcdRequest req;
   req.feature_tolerance = c.eps;
   req.near_pairs = true;
-  if (!TranslationalCcd(c.A, X_s, gap * (1 + 1e-6), c.B, c.X_WB, req, &c.data.ccd,
+  if (!TranslationalCcd(c.A, X_s, gap * (1 + 1e-6), c.B, kX_BB, req, &c.data.ccd,
                         &c.data.scratch)) {
     return false;
   }
@@ -404,7 +406,7 @@ bool SweepRotation(PdgContext& c, const Pose& X_from, Pose* X_contact) {
 // motion from q_o (Polish).
 bool OutProject(PdgContext& c, const Pose& X_free, Pose* X_contact) {
   Pose X_end;
-  if (SweepTranslation(c, X_free, c.X_WA, X_contact, &X_end)) return true;
+  if (SweepTranslation(c, X_free, c.X_BA, X_contact, &X_end)) return true;
   return SweepRotation(c, X_end, X_contact);
 }
 
@@ -412,7 +414,7 @@ bool OutProject(PdgContext& c, const Pose& X_free, Pose* X_contact) {
 // collides (nothing else done), else whether a contact was reached.
 Sweep OutProjectFrom(PdgContext& c, const Pose& X, Pose* X_contact) {
   Pose X_end;
-  const Sweep s = SweepTranslationFrom(c, X, c.X_WA, X_contact, &X_end);
+  const Sweep s = SweepTranslationFrom(c, X, c.X_BA, X_contact, &X_end);
   if (s != Sweep::kMiss) return s;
   return SweepRotation(c, X_end, X_contact) ? Sweep::kHit : Sweep::kMiss;
 }
@@ -420,14 +422,14 @@ Sweep OutProjectFrom(PdgContext& c, const Pose& X, Pose* X_contact) {
 // The rigid motion from the query pose to X, extended to parameter s
 // (s = 1: X; s > 1: further along the same motion).
 Pose AlongAnswer(const PdgContext& c, const Pose& X, double s) {
-  return InterpolateRigid(c.X_WA, X, c.A.mass().p_MC, s);
+  return InterpolateRigid(c.X_BA, X, c.A.mass().p_MC, s);
 }
 
 // Linearised contact constraints at the contact pose X_c (configuration
 // z_c): for each feature pair with unit normal n (B towards A), gap g and
 // lever r = p - c(q_c),  dg = n . dc + (r x n) . dtheta_W  with
-// dc = R_WAb0 dt and dtheta_W = R_WAb0 E(v_c) dv, so
-// a = (E^T R_WAb0^T (r x n), R_WAb0^T n) and a . z >= a . z_c - max(g, 0).
+// dc = R_BAb0 dt and dtheta = R_BAb0 E(v_c) dv, so
+// a = (E^T R_BAb0^T (r x n), R_BAb0^T n) and a . z >= a . z_c - max(g, 0).
 // The gap is clamped at 0 so that z_c itself is feasible. Appends to data.qp.
 void AddConstraints(PdgContext& c, const std::vector<FeaturePair>& features, const Pose& X_c,
                     const Vec6& z_c) {
@@ -440,14 +442,14 @@ void AddConstraints(PdgContext& c, const std::vector<FeaturePair>& features, con
   Mat3 vx;
   vx << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
   const Mat3 E = 2 * (w * Mat3::Identity() + v * v.transpose() / w + vx);
-  const Mat3 G = E.transpose() * c.R_WAb0.transpose();
+  const Mat3 G = E.transpose() * c.R_BAb0.transpose();
   const Vec3 c_c = X_c * c.A.mass().p_MC;
   for (const FeaturePair& f : features) {
     const Vec3& n = f.n_W;
     if (!(n.squaredNorm() > 0.5)) continue;  // degenerate normal: dropped
     Vec6 a;
     a.head<3>() = G * (f.p_WA - c_c).cross(n);
-    a.tail<3>() = c.R_WAb0.transpose() * n;
+    a.tail<3>() = c.R_BAb0.transpose() * n;
     qp.Add(a, a.dot(z_c) - std::max(f.signed_distance, 0.0));
   }
 }
@@ -526,7 +528,7 @@ bool CoherentStart(PdgContext& c, Pose* X_contact, double* cached_sigma) {
     // the probe as it turns), then the cached answer pose itself (stays put
     // relative to B), each pushed a little further along its motion.
     for (int variant = 0; variant < 2; ++variant) {
-      const Pose X0 = variant == 0 ? c.X_WA : e.X_BA_query;
+      const Pose X0 = variant == 0 ? c.X_BA : e.X_BA_query;
       const Pose X1 = variant == 0 ? At(c, e.z) : e.X_BA_answer;
       const double motion = MotionLength(c, X0, X1);
       if (!(motion > 0)) continue;
@@ -553,7 +555,7 @@ void ClassifyAlongMotion(const PdgContext& c, const Best& best,
                          const std::vector<FeaturePair>& features, bool* opens_all,
                          bool* closes_one) {
   const Vec3 c1 = best.X * c.A.mass().p_MC;
-  const Eigen::AngleAxisd aa(best.X.R * c.X_WA.R.transpose());
+  const Eigen::AngleAxisd aa(best.X.R * c.X_BA.R.transpose());
   const Vec3 omega = aa.angle() * aa.axis();
   const double touching = 1e-3 * c.eps;
   *opens_all = !features.empty();
@@ -576,7 +578,7 @@ void ClassifyAlongMotion(const PdgContext& c, const Best& best,
 // nearby box pair.
 bool CollidingNear(PdgContext& c, const Best& best, const Pose& X, double reach) {
   if (!best.near_pairs || !(reach < 0.5 * c.eps)) return Colliding(c, X);
-  const Pose X_BA = c.X_WB.Inverse() * X;
+  const Pose& X_BA = X;
   const Mesh& ma = c.A.mesh();
   const Mesh& mb = c.B.mesh();
   Index fa_last = -1;
@@ -605,7 +607,7 @@ bool Polish(PdgContext& c, Best* best) {
     ClassifyAlongMotion(c, *best, c.data.best_features, &opens_all, &closes_one);
     // The collision queries only where first order does not decide.
     if (!opens_all && CollidingNear(c, *best, AlongAnswer(c, best->X, 1 + kPush),
-                                    kPush * MotionLength(c, c.X_WA, best->X))) {
+                                    kPush * MotionLength(c, c.X_BA, best->X))) {
       return false;
     }
     if (round == kRounds || closes_one) return true;
@@ -649,7 +651,7 @@ bool ReprojectQpAnswer(PdgContext& c, const Best& best, const Pose& X_star, Pose
     s = SweepTranslationFrom(c, X_back, X_star, X_new, &X_end);
   }
   if (s == Sweep::kStartColliding) {
-    const double motion = MotionLength(c, c.X_WA, best.X);
+    const double motion = MotionLength(c, c.X_BA, best.X);
     const Pose X_back = AlongAnswer(c, best.X, 1 + 2 * c.eps / std::max(motion, 1e-300));
     s = SweepTranslationFrom(c, X_back, X_star, X_new, &X_end);
   }
@@ -730,12 +732,12 @@ PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations) {
 void WriteAnswer(const PdgContext& c, const Best& best, PenetrationResult* result) {
   result->sigma = best.sigma;
   result->depth = std::sqrt(best.sigma);
-  result->translation_W = c.R_WAb0 * best.z.tail<3>();
+  result->translation_W = c.R_BAb0 * best.z.tail<3>();
   result->X_WA_result = best.X;
   // Angle and axis from the whole quaternion of the relative rotation: from
   // z's vector part alone (w = sqrt(1 - |v|^2)) the angle near 180 degrees
   // is only good to about 1e-8.
-  const Eigen::AngleAxisd aa(Quat(best.X.R * c.X_WA.R.transpose()));
+  const Eigen::AngleAxisd aa(Quat(best.X.R * c.X_BA.R.transpose()));
   result->rotation_angle = aa.angle();
   if (aa.angle() > 0) result->rotation_axis_W = aa.axis();
   for (const FeaturePair& f : c.data.best_features) {
@@ -743,28 +745,34 @@ void WriteAnswer(const PdgContext& c, const Best& best, PenetrationResult* resul
   }
 }
 
-void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+// The algorithm proper, in B's frame: A at X_BA, B at the identity. The
+// result's "_W" fields hold B-frame values until ComputePdg maps them.
+void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
              const PenetrationRequest& request, PdgQueryData* data, PenetrationResult* result,
              Clock::time_point t0) {
-  ResetPenetrationResult(PdMode::kGeneralized, X_WA, result);
+  ResetPenetrationResult(PdMode::kGeneralized, X_BA, result);
   const double size = std::min(A.mesh().size(), B.mesh().size());
   const double eps = std::max(request.contact_epsilon, 1e-12) * size;
-  const Mat3 R_WAb0 = X_WA.R * A.mass().X_MB.R;
-  PdgContext c{A,       X_WA,
-               B,       X_WB,
-               request, *data,
-               eps,     PdgMetricDiagonal(A.mass(), request),
-               R_WAb0,  X_WA * A.mass().p_MC};
+  const Mat3 R_BAb0 = X_BA.R * A.mass().X_MB.R;
+  PdgContext c{A,
+               X_BA,
+               B,
+               request,
+               *data,
+               eps,
+               PdgMetricDiagonal(A.mass(), request),
+               R_BAb0,
+               X_BA * A.mass().p_MC};
   auto finish = [&](PdStatus status) {
     result->status = status;
     result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
   };
 
-  if (!Colliding(c, X_WA)) {
-    if (request.use_coherence) data->Remember({X_WA, X_WA, Vec6::Zero(), false, 0.0});
+  if (!Colliding(c, X_BA)) {
+    if (request.use_coherence) data->Remember({X_BA, X_BA, Vec6::Zero(), false, 0.0});
     // Keep PDt's coherence in step when it runs every query.
     if (request.pdg_always_pdt_start) {
-      ComputePdt(A, X_WA, B, X_WB, request, &data->pdt, &data->pdt_result);
+      ComputePdt(A, X_BA, B, kX_BB, request, &data->pdt, &data->pdt_result);
     }
     finish(PdStatus::kSeparated);
     return;
@@ -789,7 +797,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
           std::min(pdt_request.cold_start_directions, kColdStartDirections);
       data->pdt.cold_search_bound = std::sqrt(best.sigma);
     }
-    ComputePdt(A, X_WA, B, X_WB, pdt_request, &data->pdt, &data->pdt_result);
+    ComputePdt(A, X_BA, B, kX_BB, pdt_request, &data->pdt, &data->pdt_result);
     data->pdt.cold_search_bound = std::numeric_limits<double>::infinity();
     pdt_done = true;
     if (pdt.status == PdStatus::kPenetratingSolved ||
@@ -838,7 +846,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   }
 
   WriteAnswer(c, best, result);
-  if (request.use_coherence) data->Remember({X_WA, best.X, best.z, true, best.sigma});
+  if (request.use_coherence) data->Remember({X_BA, best.X, best.z, true, best.sigma});
   finish(status);
 }
 
@@ -862,7 +870,7 @@ void ComputePdg(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B
   // Work in B's frame (as PDt): the answer depends only on the relative pose
   // and the coherence cache is naturally relative to B.
   const Pose X_BA = X_WB.Inverse() * X_WA;
-  PdgCore(A, X_BA, B, Pose::Identity(), request, data, result, t0);
+  PdgCore(A, X_BA, B, request, data, result, t0);
   result->translation_W = X_WB.R * result->translation_W;
   result->X_WA_result = X_WB * result->X_WA_result;
   result->rotation_axis_W = X_WB.R * result->rotation_axis_W;

@@ -210,11 +210,12 @@ using Clock = std::chrono::steady_clock;
 
 Pose Shifted(const Pose& X, const Vec3& x) { return Pose{X.R, X.t + x}; }
 
+// The core works in B's frame: B sits at the identity (kX_BB), and every
+// offset, point and normal below is in B's frame (the queries' "W" is B).
 struct PdtContext {
   const GeometryModel& A;
-  const Pose& X_WA;
+  const Pose& X_BA;
   const GeometryModel& B;
-  const Pose& X_WB;
   const PenetrationRequest& request;
   PdQueryData& data;
   double eps;  // absolute contact tolerance (m)
@@ -222,12 +223,14 @@ struct PdtContext {
   int ccd_queries = 0;
 };
 
+const Pose kX_BB = Pose::Identity();
+
 double Size(const PdtContext& c) { return std::min(c.A.mesh().size(), c.B.mesh().size()); }
 
 bool Colliding(PdtContext& c, const Vec3& x) {
   CollisionRequest req;
   ++c.collision_queries;
-  return Collide(c.A, Shifted(c.X_WA, x), c.B, c.X_WB, req, &c.data.collision, &c.data.scratch);
+  return Collide(c.A, Shifted(c.X_BA, x), c.B, kX_BB, req, &c.data.collision, &c.data.scratch);
 }
 
 enum class SweepOutcome : std::uint8_t { kStartColliding, kHit, kMiss };
@@ -242,7 +245,7 @@ SweepOutcome SweepFrom(PdtContext& c, const Vec3& x_from, const Vec3& x_to, Vec3
   req.feature_tolerance = c.eps;
   req.check_start = check_start;
   ++c.ccd_queries;
-  if (!TranslationalCcd(c.A, Shifted(c.X_WA, x_from), x_to - x_from, c.B, c.X_WB, req, &c.data.ccd,
+  if (!TranslationalCcd(c.A, Shifted(c.X_BA, x_from), x_to - x_from, c.B, kX_BB, req, &c.data.ccd,
                         &c.data.scratch)) {
     return c.data.ccd.start_colliding ? SweepOutcome::kStartColliding : SweepOutcome::kMiss;
   }
@@ -257,8 +260,8 @@ bool Sweep(PdtContext& c, const Vec3& x_from, const Vec3& x_to, Vec3* x_contact)
 
 // A free offset far enough along unit u that the bounding spheres are apart.
 Vec3 OutsideAlong(const PdtContext& c, const Vec3& u) {
-  const Vec3 cA = c.X_WA * c.A.mesh().bounds().Center();
-  const Vec3 cB = c.X_WB * c.B.mesh().bounds().Center();
+  const Vec3 cA = c.X_BA * c.A.mesh().bounds().Center();
+  const Vec3 cB = c.B.mesh().bounds().Center();
   const double rA = c.A.mesh().bounding_radius(), rB = c.B.mesh().bounding_radius();
   // Need |cA + s u - cB| > rA + rB: s = (cB - cA).u + sqrt(...) suffices, take
   // a simple sufficient value.
@@ -273,8 +276,7 @@ Vec3 OutsideAlong(const PdtContext& c, const Vec3& u) {
 bool CoherentStart(PdtContext& c, bool try_pushes, Vec3* x_contact) {
   PdQueryData& d = c.data;
   if (!c.request.use_coherence || d.coherence_size_ == 0) return false;
-  const Pose X_BW = c.X_WB.Inverse();
-  const Vec3 p_BAo = X_BW * c.X_WA.t;
+  const Vec3& p_BAo = c.X_BA.t;
   // Try the two entries nearest to the current pose.
   int order[2] = {-1, -1};
   double dist[2] = {std::numeric_limits<double>::infinity(),
@@ -296,7 +298,7 @@ bool CoherentStart(PdtContext& c, bool try_pushes, Vec3* x_contact) {
     // A stored contact is touching: push it out a little along its direction.
     for (double push : {2.0, 20.0}) {
       const Vec3 p_B = e.p_BAo + e.dir_B * (push * c.eps);
-      const Vec3 x = c.X_WB * p_B - c.X_WA.t;
+      const Vec3 x = p_B - c.X_BA.t;
       switch (SweepFrom(c, x, Vec3::Zero(), x_contact, true)) {
         case SweepOutcome::kHit:
           return true;
@@ -312,7 +314,7 @@ bool CoherentStart(PdtContext& c, bool try_pushes, Vec3* x_contact) {
   // straight back along the nearest entry's direction from outside both
   // bounding spheres, one sweep instead of a cold start's thirteen.
   if (order[0] >= 0 && d.coherence[order[0]].dir_B.squaredNorm() > 0) {
-    const Vec3 u = c.X_WB.R * d.coherence[order[0]].dir_B;
+    const Vec3& u = d.coherence[order[0]].dir_B;
     return SweepFrom(c, OutsideAlong(c, u), Vec3::Zero(), x_contact, false) == SweepOutcome::kHit;
   }
   return false;
@@ -328,10 +330,9 @@ SweepOutcome ContactSpaceStart(PdtContext& c, Vec3* x_contact) {
   if (!c.request.use_coherence || !d.contact_space_valid_ || d.contact_space_B.empty()) {
     return SweepOutcome::kMiss;
   }
-  // World = B's frame here (ComputePdt runs the core in B's frame).
-  const double cos_turn = 0.5 * ((d.contact_space_R_BA.transpose() * c.X_WA.R).trace() - 1);
+  const double cos_turn = 0.5 * ((d.contact_space_R_BA.transpose() * c.X_BA.R).trace() - 1);
   if (cos_turn < std::cos(0.05)) return SweepOutcome::kMiss;
-  const Vec3& p = c.X_WA.t;
+  const Vec3& p = c.X_BA.t;
   d.planes.clear();
   for (const ContactPlane& q : d.contact_space_B) d.planes.push_back({q.n, q.b - q.n.dot(p)});
   Vec3 x_star;
@@ -367,14 +368,14 @@ void BuildPlanes(const std::vector<FeaturePair>& features, const Vec3& x_c,
 // The 13 fixed escape directions of the plain cold start: the centroid
 // direction and both bodies' principal axes.
 std::array<Vec3, kColdStartDirections> FixedColdDirections(const PdtContext& c, double size) {
-  Vec3 u0 = c.X_WA * c.A.mass().p_MC - c.X_WB * c.B.mesh().bounds().Center();
+  Vec3 u0 = c.X_BA * c.A.mass().p_MC - c.B.mesh().bounds().Center();
   u0 = u0.norm() < 1e-12 * size ? Vec3(Vec3::UnitZ()) : Vec3(u0.normalized());
   std::array<Vec3, kColdStartDirections> dirs;
   dirs[0] = u0;
   for (int k = 0; k < 3; ++k) {
-    dirs[1 + 2 * k] = c.X_WB.R * c.B.mass().X_MB.R.col(k);
+    dirs[1 + 2 * k] = c.B.mass().X_MB.R.col(k);
     dirs[2 + 2 * k] = -dirs[1 + 2 * k];
-    dirs[7 + 2 * k] = c.X_WA.R * c.A.mass().X_MB.R.col(k);
+    dirs[7 + 2 * k] = c.X_BA.R * c.A.mass().X_MB.R.col(k);
     dirs[8 + 2 * k] = -dirs[7 + 2 * k];
   }
   return dirs;
@@ -584,14 +585,14 @@ bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
 
 namespace {
 
-// The algorithm proper, with "world" = any frame the caller chooses;
-// ComputePdt runs it in B's frame.
-void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
+// The algorithm proper, in B's frame: A at X_BA, B at the identity. The
+// result's "_W" fields hold B-frame values until ComputePdt maps them.
+void PdtCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
              const PenetrationRequest& request, PdQueryData* data, PenetrationResult* result,
              Clock::time_point t0) {
-  ResetPenetrationResult(PdMode::kTranslational, X_WA, result);
+  ResetPenetrationResult(PdMode::kTranslational, X_BA, result);
   const double size = std::min(A.mesh().size(), B.mesh().size());
-  PdtContext c{A, X_WA, B, X_WB, request, *data, std::max(request.contact_epsilon, 1e-12) * size};
+  PdtContext c{A, X_BA, B, request, *data, std::max(request.contact_epsilon, 1e-12) * size};
   auto finish = [&](PdStatus status) {
     result->status = status;
     result->collision_queries = c.collision_queries;
@@ -599,11 +600,10 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
   };
 
-  const Pose X_BW = X_WB.Inverse();
   if (!Colliding(c, Vec3::Zero())) {
     data->contact_space_valid_ = false;
     if (request.use_coherence) {
-      data->Remember({X_BW * X_WA.t, X_BW.R * X_WA.R, Vec3::Zero()});
+      data->Remember({X_BA.t, X_BA.R, Vec3::Zero()});
     }
     finish(PdStatus::kSeparated);
     return;
@@ -630,13 +630,13 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   if (!have_best && request.convex_shortcut && A.convex() && B.convex()) {
     // Cold start between convex polytopes: the exact answer directly (the
     // iteration below only confirms it).
-    const ConvexPdtResult cr = ConvexPdt(A.mesh(), X_WA, B.mesh(), X_WB);
+    const ConvexPdtResult cr = ConvexPdt(A.mesh(), X_BA, B.mesh(), kX_BB);
     if (cr.overlapping) {
       ProximityRequest preq;
       preq.tolerance = c.eps;
       ProximityResult pres;
       pres.pairs.swap(data->best_features);
-      Proximity(A, Shifted(X_WA, cr.translation_W), B, X_WB, preq, &pres, &data->scratch);
+      Proximity(A, Shifted(X_BA, cr.translation_W), B, kX_BB, preq, &pres, &data->scratch);
       data->best_features.swap(pres.pairs);
       best = cr.translation_W;
       have_best = true;
@@ -654,7 +654,7 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
   result->iterations = iterations;
   result->translation_W = best;
   result->depth = best.norm();
-  result->X_WA_result = Shifted(X_WA, best);
+  result->X_WA_result = Shifted(X_BA, best);
   for (const FeaturePair& f : data->best_features) {
     if (f.n_W.squaredNorm() > 0.5) result->features.push_back({f.type, f.a, f.b, f.p_WB, f.n_W});
   }
@@ -666,14 +666,13 @@ void PdtCore(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     BuildPlanes(data->best_features, best, &data->planes);
     data->contact_space_B.clear();
     for (const ContactPlane& q : data->planes) {
-      data->contact_space_B.push_back({q.n, q.b + q.n.dot(X_WA.t)});
+      data->contact_space_B.push_back({q.n, q.b + q.n.dot(X_BA.t)});
     }
-    data->contact_space_R_BA = X_WA.R;
-    data->contact_space_p_BAo = X_WA.t + best;
+    data->contact_space_R_BA = X_BA.R;
+    data->contact_space_p_BAo = X_BA.t + best;
     data->contact_space_valid_ = !data->contact_space_B.empty();
-    data->Remember(
-        {X_BW * result->X_WA_result.t, X_BW.R * X_WA.R,
-         X_BW.R * (result->depth > 0 ? Vec3(best / result->depth) : Vec3(Vec3::Zero()))});
+    data->Remember({result->X_WA_result.t, X_BA.R,
+                    result->depth > 0 ? Vec3(best / result->depth) : Vec3(Vec3::Zero())});
   }
   finish(status);
 }
@@ -691,7 +690,7 @@ void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B
   // a common rigid motion of probe and scene moves the answer with it (up to
   // the rounding of X_BA), and the coherence cache is naturally relative to B.
   const Pose X_BA = X_WB.Inverse() * X_WA;
-  PdtCore(A, X_BA, B, Pose::Identity(), request, data, result, t0);
+  PdtCore(A, X_BA, B, request, data, result, t0);
   result->translation_W = X_WB.R * result->translation_W;
   result->X_WA_result = X_WB * result->X_WA_result;
   for (ContactFeature& f : result->features) {
