@@ -146,12 +146,22 @@ std::string Str(const Vec3& v) {
   return os.str();
 }
 
-void RunPd(const PdOptions& o) {
+// What the command line asks for, checked.
+struct PdInputs {
+  bool generalized = false;
+  pd::Material material;
+  pd::PenetrationRequest request;
+  Pose X_WA;
+  std::vector<Pose> X_WB;  ///< one per --scene
+};
+
+PdInputs ParsePdInputs(const PdOptions& o) {
   // Cheap checks first, so a typo does not wait for a large mesh to load.
   if (o.mode != "pdt" && o.mode != "pdg") {
     throw CommandError("pd: unknown mode '" + o.mode + "' (valid modes: pdt, pdg)");
   }
-  const bool generalized = o.mode == "pdg";
+  PdInputs in;
+  in.generalized = o.mode == "pdg";
   if (o.probe.empty()) throw CommandError("pd: --probe FILE|shape:SPEC is required");
   if (o.scenes.empty()) throw CommandError("pd: at least one --scene FILE|shape:SPEC is required");
   if (o.pose.empty()) throw CommandError("pd: --pose \"tx ty tz qw qx qy qz\" is required");
@@ -159,10 +169,10 @@ void RunPd(const PdOptions& o) {
     throw CommandError("pd: " + std::to_string(o.scene_poses.size()) + " --scene-pose given for " +
                        std::to_string(o.scenes.size()) + " --scene");
   }
-  pd::Material material;
-  material.stiffness = ParsePositive("--stiffness", o.stiffness);
-  material.rotational_stiffness = ParsePositive("--rotational-stiffness", o.rotational_stiffness);
-  pd::PenetrationRequest request;
+  in.material.stiffness = ParsePositive("--stiffness", o.stiffness);
+  in.material.rotational_stiffness =
+      ParsePositive("--rotational-stiffness", o.rotational_stiffness);
+  pd::PenetrationRequest& request = in.request;
   if (!o.epsilon.empty()) request.contact_epsilon = ParsePositive("--epsilon", o.epsilon);
   if (!o.max_iterations.empty()) {
     request.max_iterations = ParsePositiveInt("--max-iterations", o.max_iterations);
@@ -177,78 +187,87 @@ void RunPd(const PdOptions& o) {
     throw CommandError("pd: --cold-directions must be at most " +
                        std::to_string(pd::kMaxColdSearchDirections) + ", got " + o.cold_directions);
   }
-  const Pose X_WA = ParsePose("--pose", o.pose);
-  const Quat q_WA(X_WA.R);
-  std::vector<Pose> X_WB(o.scenes.size(), Pose::Identity());
+  in.X_WA = ParsePose("--pose", o.pose);
+  in.X_WB.assign(o.scenes.size(), Pose::Identity());
   for (std::size_t i = 0; i < o.scene_poses.size(); ++i) {
-    X_WB[i] = ParsePose("--scene-pose " + std::to_string(i), o.scene_poses[i]);
+    in.X_WB[i] = ParsePose("--scene-pose " + std::to_string(i), o.scene_poses[i]);
   }
+  return in;
+}
 
-  const pd::ModelPtr probe = pd::MakeModel(LoadSource(o.probe));
-  std::vector<pd::ModelPtr> bodies;
-  for (const auto& s : o.scenes) bodies.push_back(pd::MakeModel(LoadSource(s)));
-
-  // One query per body, each with its own session data (no coherence to
-  // carry in a one-shot command, but it is the same call the servo loop makes).
-  const Vec3 p_WAcm = X_WA * probe->mass().p_MC;
-  std::vector<pd::PenetrationResult> results(bodies.size());
-  Wrench wrench;
-  int deepest = -1;
+// One query per body and their sum.
+struct PdAnswers {
+  std::vector<pd::PenetrationResult> results;  ///< per body
+  Vec3 p_WAcm = Vec3::Zero();                  ///< the probe's centre of mass (torque point)
+  Wrench wrench;                               ///< summed over the bodies
+  int deepest = -1;                            ///< the deepest penetrated body, -1: none
   bool colliding = false;
   int iterations = 0;
   std::size_t contacts = 0;
   double time_us = 0;
+};
+
+PdAnswers QueryEachBody(const PdInputs& in, const pd::GeometryModel& probe,
+                        const std::vector<pd::ModelPtr>& bodies) {
+  // Each with its own session data (no coherence to carry in a one-shot
+  // command, but it is the same call the servo loop makes).
+  PdAnswers a;
+  a.p_WAcm = in.X_WA * probe.mass().p_MC;
+  a.results.resize(bodies.size());
   for (std::size_t i = 0; i < bodies.size(); ++i) {
-    if (generalized) {
+    if (in.generalized) {
       pd::PdgQueryData data;
-      pd::ComputePdg(*probe, X_WA, *bodies[i], X_WB[i], request, &data, &results[i]);
+      pd::ComputePdg(probe, in.X_WA, *bodies[i], in.X_WB[i], in.request, &data, &a.results[i]);
     } else {
       pd::PdQueryData data;
-      pd::ComputePdt(*probe, X_WA, *bodies[i], X_WB[i], request, &data, &results[i]);
+      pd::ComputePdt(probe, in.X_WA, *bodies[i], in.X_WB[i], in.request, &data, &a.results[i]);
     }
-    const pd::PenetrationResult& r = results[i];
-    const Wrench w = pd::PdWrench(r, material, p_WAcm);
-    wrench.force += w.force;
-    wrench.torque += w.torque;
-    iterations += r.iterations;
-    contacts += r.features.size();
-    time_us += r.time_us;
+    const pd::PenetrationResult& r = a.results[i];
+    const Wrench w = pd::PdWrench(r, in.material, a.p_WAcm);
+    a.wrench.force += w.force;
+    a.wrench.torque += w.torque;
+    a.iterations += r.iterations;
+    a.contacts += r.features.size();
+    a.time_us += r.time_us;
     if (r.status == pd::PdStatus::kSeparated) continue;
-    colliding = true;
-    if (deepest < 0 || r.depth > results[deepest].depth) deepest = static_cast<int>(i);
+    a.colliding = true;
+    if (a.deepest < 0 || r.depth > a.results[a.deepest].depth) a.deepest = static_cast<int>(i);
   }
+  return a;
+}
 
-  const pd::PenetrationResult* top = deepest >= 0 ? &results[deepest] : nullptr;
-  const Vec3 translation = top ? top->translation_W : Vec3::Zero();
-  const Pose X_WA_result = top ? top->X_WA_result : X_WA;
-
+nlohmann::json PdJson(const PdOptions& o, const PdInputs& in, const pd::GeometryModel& probe,
+                      const std::vector<pd::ModelPtr>& bodies, const PdAnswers& a) {
+  const bool generalized = in.generalized;
+  const Quat q_WA(in.X_WA.R);
+  const pd::PenetrationResult* top = a.deepest >= 0 ? &a.results[a.deepest] : nullptr;
   nlohmann::json j;
-  j["colliding"] = colliding;
+  j["colliding"] = a.colliding;
   j["mode"] = o.mode;
   j["status"] = top ? pd::ToString(top->status) : "separated";
-  j["deepest_body"] = deepest >= 0 ? nlohmann::json(deepest) : nlohmann::json(nullptr);
+  j["deepest_body"] = a.deepest >= 0 ? nlohmann::json(a.deepest) : nlohmann::json(nullptr);
   j["depth"] = top ? top->depth : 0.0;
-  j["translation"] = Vec(translation);
-  j["pose"] = PoseArray(X_WA, q_WA);
-  j["result_pose"] = PoseArray(X_WA_result, q_WA);
+  j["translation"] = Vec(top ? top->translation_W : Vec3::Zero());
+  j["pose"] = PoseArray(in.X_WA, q_WA);
+  j["result_pose"] = PoseArray(top ? top->X_WA_result : in.X_WA, q_WA);
   if (generalized) {
     j["sigma"] = top ? top->sigma : 0.0;
     j["rotation_angle"] = top ? top->rotation_angle : 0.0;
     j["rotation_axis"] = Vec(top ? top->rotation_axis_W : Vec3(Vec3::UnitZ()));
   }
-  j["iterations"] = iterations;
-  j["contacts"] = contacts;
+  j["iterations"] = a.iterations;
+  j["contacts"] = a.contacts;
   j["regions"] = nlohmann::json::array();
-  j["force"] = Vec(wrench.force);
-  j["torque"] = Vec(wrench.torque);
-  j["torque_about"] = Vec(p_WAcm);
-  j["stiffness"] = material.stiffness;
-  if (generalized) j["rotational_stiffness"] = material.rotational_stiffness;
-  j["time_us"] = time_us;
-  j["probe"] = {{"source", o.probe}, {"triangles", probe->mesh().num_triangles()}};
+  j["force"] = Vec(a.wrench.force);
+  j["torque"] = Vec(a.wrench.torque);
+  j["torque_about"] = Vec(a.p_WAcm);
+  j["stiffness"] = in.material.stiffness;
+  if (generalized) j["rotational_stiffness"] = in.material.rotational_stiffness;
+  j["time_us"] = a.time_us;
+  j["probe"] = {{"source", o.probe}, {"triangles", probe.mesh().num_triangles()}};
   j["bodies"] = nlohmann::json::array();
   for (std::size_t i = 0; i < bodies.size(); ++i) {
-    const pd::PenetrationResult& r = results[i];
+    const pd::PenetrationResult& r = a.results[i];
     for (const pd::ContactRegion& reg : r.regions) {
       j["regions"].push_back(
           {{"point", Vec(reg.p_W)}, {"normal", Vec(reg.n_W)}, {"depth", reg.depth}, {"body", i}});
@@ -256,7 +275,7 @@ void RunPd(const PdOptions& o) {
     nlohmann::json b = {{"body", i},
                         {"source", o.scenes[i]},
                         {"triangles", bodies[i]->mesh().num_triangles()},
-                        {"scene_pose", PoseArray(X_WB[i], Quat(X_WB[i].R))},
+                        {"scene_pose", PoseArray(in.X_WB[i], Quat(in.X_WB[i].R))},
                         {"status", pd::ToString(r.status)},
                         {"depth", r.depth},
                         {"translation", Vec(r.translation_W)},
@@ -273,22 +292,24 @@ void RunPd(const PdOptions& o) {
     if (r.status == pd::PdStatus::kFailed) b["failure"] = r.failure;
     j["bodies"].push_back(std::move(b));
   }
-  if (o.json) {
-    std::cout << j.dump(2) << "\n";
-    return;
-  }
+  return j;
+}
 
+// The human-readable form of `j` (PdJson's).
+void PrintPd(const PdOptions& o, const PdInputs& in, const pd::GeometryModel& probe,
+             const std::vector<pd::ModelPtr>& bodies, const PdAnswers& a, const nlohmann::json& j) {
+  const bool generalized = in.generalized;
+  const pd::PenetrationResult* top = a.deepest >= 0 ? &a.results[a.deepest] : nullptr;
   const auto& rp = j["result_pose"];
   std::cout << std::setprecision(6);
-  std::cout << "probe        " << o.probe << " (" << probe->mesh().num_triangles()
-            << " triangles)\n"
+  std::cout << "probe        " << o.probe << " (" << probe.mesh().num_triangles() << " triangles)\n"
             << "mode         " << o.mode << "\n"
-            << "colliding    " << (colliding ? "yes" : "no") << "\n"
+            << "colliding    " << (a.colliding ? "yes" : "no") << "\n"
             << "status       " << j["status"].get<std::string>();
-  if (deepest >= 0) std::cout << " (deepest: body " << deepest << ")";
+  if (a.deepest >= 0) std::cout << " (deepest: body " << a.deepest << ")";
   std::cout << "\n"
             << "depth        " << j["depth"].get<double>() << " m\n"
-            << "translation  " << Str(translation) << " m"
+            << "translation  " << Str(top ? top->translation_W : Vec3::Zero()) << " m"
             << (generalized ? " (of the centre of mass)" : "") << "\n";
   if (generalized && top) {
     std::cout << "sigma        " << top->sigma << " m^2\n"
@@ -298,17 +319,17 @@ void RunPd(const PdOptions& o) {
   std::cout << "result pose  t (" << rp[0].get<double>() << ", " << rp[1].get<double>() << ", "
             << rp[2].get<double>() << ")  q (" << rp[3].get<double>() << ", " << rp[4].get<double>()
             << ", " << rp[5].get<double>() << ", " << rp[6].get<double>() << ")\n"
-            << "force        " << Str(wrench.force) << " N  (k = " << material.stiffness
+            << "force        " << Str(a.wrench.force) << " N  (k = " << in.material.stiffness
             << " N/m)\n"
-            << "torque       " << Str(wrench.torque) << " N m about the probe's centre of mass "
-            << Str(p_WAcm);
-  if (generalized) std::cout << "  (xi = " << material.rotational_stiffness << " N m/rad)";
+            << "torque       " << Str(a.wrench.torque) << " N m about the probe's centre of mass "
+            << Str(a.p_WAcm);
+  if (generalized) std::cout << "  (xi = " << in.material.rotational_stiffness << " N m/rad)";
   std::cout << "\n"
-            << "iterations   " << iterations << ", contacts " << contacts << ", regions "
+            << "iterations   " << a.iterations << ", contacts " << a.contacts << ", regions "
             << j["regions"].size() << "\n"
-            << "PD time      " << time_us << " us\n";
+            << "PD time      " << a.time_us << " us\n";
   for (std::size_t i = 0; i < bodies.size(); ++i) {
-    const pd::PenetrationResult& r = results[i];
+    const pd::PenetrationResult& r = a.results[i];
     std::cout << "body " << i << "       " << o.scenes[i] << " ("
               << bodies[i]->mesh().num_triangles() << " triangles): " << pd::ToString(r.status)
               << ", depth " << r.depth << " m along " << Str(r.translation_W) << ", ";
@@ -325,6 +346,20 @@ void RunPd(const PdOptions& o) {
                 << reg.depth << " m\n";
     }
   }
+}
+
+void RunPd(const PdOptions& o) {
+  const PdInputs in = ParsePdInputs(o);
+  const pd::ModelPtr probe = pd::MakeModel(LoadSource(o.probe));
+  std::vector<pd::ModelPtr> bodies;
+  for (const auto& s : o.scenes) bodies.push_back(pd::MakeModel(LoadSource(s)));
+  const PdAnswers answers = QueryEachBody(in, *probe, bodies);
+  const nlohmann::json j = PdJson(o, in, *probe, bodies, answers);
+  if (o.json) {
+    std::cout << j.dump(2) << "\n";
+    return;
+  }
+  PrintPd(o, in, *probe, bodies, answers, j);
 }
 
 }  // namespace
