@@ -101,33 +101,13 @@ void ServoLoop::Tick(std::int64_t now_ns) {
   r.tick = stats_.ticks + 1;
   r.time_ns = now_ns;
   r.new_ir = false;
-
-  // Period statistics (from the loop's own clock).
-  double dt = h;
-  if (stats_.ticks > 0) {
-    dt = 1e-9 * static_cast<double>(now_ns - last_tick_ns_);
-    stats_.period_us.Add(dt * 1e6);
-    if (dt > 1.5 * h) {
-      ++stats_.late_ticks;
-      live_.late_ticks.fetch_add(1, std::memory_order_relaxed);
-    }
-  }
-  last_tick_ns_ = now_ns;
-
-  r.device_status = device_->Read(&r.state);
-  if (r.device_status != DeviceStatus::kOk && r.device_status != DeviceStatus::kEndOfData) {
-    ++stats_.device_errors;
-    r.F_cmd_D = Wrench{};
-    r.F_cmd_W = Wrench{};
-    device_->Command(r.F_cmd_D);
-    r.source = TickSource::kFaded;
-    r.fail_safe = FailSafeOf(r);
+  const double dt = MeasurePeriod(now_ns);
+  if (!ReadDevice(&r)) {
     PushSample(r);
     ++stats_.ticks;
     return;
   }
   const Mat3& R_WD = config_.X_WD.R;
-  r.X_WH = config_.X_WD * r.state.X_DH;
   const Vec3 v_WH = R_WD * r.state.v_DH_D;
   const Vec3 w_WH = R_WD * r.state.w_DH_D;
   if (!proxy_init_) {
@@ -136,7 +116,56 @@ void ServoLoop::Tick(std::int64_t now_ns) {
     proxy_.w_W = w_WH;
     proxy_init_ = true;
   }
+  TakeLinkRequestsAndIr(&r);
+  StepProxyAgainstContact(now_ns, h, v_WH, w_WH, &r);
+  UpdateLinkFade(dt, h, v_WH, w_WH, &r);
+  ClassifySource(&r);
+  r.proxy = proxy_;
+  r.W_coupling = CouplingWrench(coupling_.gains, r.X_WH, v_WH, w_WH, proxy_, &r.clamped);
+  if (r.clamped) ++stats_.clamped_ticks;
+  UpdateStartup(h, &r);
+  r.fail_safe = FailSafeOf(r);
+  CommandDevice(&r);
+  AccumulateForceAndEnergy(r, dt, v_WH, w_WH);
+  PublishProxy(r, now_ns);
+  PushSample(r);
+  ++stats_.ticks;
+  live_.ticks.store(stats_.ticks, std::memory_order_relaxed);
+  stats_.compute_us.Add(1e-3 * static_cast<double>(SteadyClock::Instance().NowNs() - t_begin));
+}
 
+double ServoLoop::MeasurePeriod(std::int64_t now_ns) {
+  // Period statistics (from the loop's own clock).
+  double dt = config_.period_s;
+  if (stats_.ticks > 0) {
+    dt = 1e-9 * static_cast<double>(now_ns - last_tick_ns_);
+    stats_.period_us.Add(dt * 1e6);
+    if (dt > 1.5 * config_.period_s) {
+      ++stats_.late_ticks;
+      live_.late_ticks.fetch_add(1, std::memory_order_relaxed);
+    }
+  }
+  last_tick_ns_ = now_ns;
+  return dt;
+}
+
+bool ServoLoop::ReadDevice(TickRecord* r) {
+  r->device_status = device_->Read(&r->state);
+  if (r->device_status != DeviceStatus::kOk && r->device_status != DeviceStatus::kEndOfData) {
+    // A device that cannot be read gets zero output at once.
+    ++stats_.device_errors;
+    r->F_cmd_D = Wrench{};
+    r->F_cmd_W = Wrench{};
+    device_->Command(r->F_cmd_D);
+    r->source = TickSource::kFaded;
+    r->fail_safe = FailSafeOf(*r);
+    return false;
+  }
+  r->X_WH = config_.X_WD * r->state.X_DH;
+  return true;
+}
+
+void ServoLoop::TakeLinkRequestsAndIr(TickRecord* r) {
   if (link_request_.load(std::memory_order_relaxed) != kLinkNone) {
     const int request = link_request_.exchange(kLinkNone, std::memory_order_acq_rel);
     if (request == kLinkReset) {
@@ -148,43 +177,50 @@ void ServoLoop::Tick(std::int64_t now_ns) {
   }
   if (ir_in_.Fetch() && !link_lost_) {
     eval_.Accept(ir_in_.front(), proxy_.X_WP);
-    r.new_ir = true;
+    r->new_ir = true;
     ++stats_.ir_updates;
     live_.ir_updates.fetch_add(1, std::memory_order_relaxed);
   }
-  Mat6 K_ir;
-  eval_.Evaluate(proxy_.X_WP, now_ns, h, &r.W_ir, &K_ir, &r.ir);
-  if (r.ir.have_ir) {
-    stats_.ir_age_ms.Add(r.ir.age_s * 1e3);
-    if (r.ir.stale) ++stats_.stale_ticks;
-    if (r.ir.outside_validity) ++stats_.outside_ticks;
-  }
+}
 
+void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, const Vec3& v_WH,
+                                        const Vec3& w_WH, TickRecord* r) {
+  Mat6 K_ir;
+  eval_.Evaluate(proxy_.X_WP, now_ns, h, &r->W_ir, &K_ir, &r->ir);
+  if (r->ir.have_ir) {
+    stats_.ir_age_ms.Add(r->ir.age_s * 1e3);
+    if (r->ir.stale) ++stats_.stale_ticks;
+    if (r->ir.outside_validity) ++stats_.outside_ticks;
+  }
   // Effects hook (effects.h): only the stages the scene declared run.
   Mat6 K_fx;
-  effects_.Apply(EffectInput{&eval_.current(), r.W_ir, K_ir, proxy_.X_WP, proxy_.v_W, proxy_.w_W,
+  effects_.Apply(EffectInput{&eval_.current(), r->W_ir, K_ir, proxy_.X_WP, proxy_.v_W, proxy_.w_W,
                              1e-9 * static_cast<double>(now_ns)},
-                 &r.W_effects, &K_fx);
-  r.contact_weight = config_.free_space_follows_handle
-                         ? ContactWeight(r.ir.max_depth, config_.free_space_margin_m)
-                         : 1.0;
-  StepProxy(coupling_, r.X_WH, v_WH, w_WH, r.W_effects, K_fx, h, &proxy_, r.contact_weight);
+                 &r->W_effects, &K_fx);
+  r->contact_weight = config_.free_space_follows_handle
+                          ? ContactWeight(r->ir.max_depth, config_.free_space_margin_m)
+                          : 1.0;
+  StepProxy(coupling_, r->X_WH, v_WH, w_WH, r->W_effects, K_fx, h, &proxy_, r->contact_weight);
   // An IR no valid answer produces (numbers that overflow on their way,
   // from a broken or foreign server) must not leave the proxy non-finite
   // for good: put it back on the handle and drop the IR.
   if (!proxy_.X_WP.t.allFinite() || !proxy_.X_WP.R.allFinite() || !proxy_.v_W.allFinite() ||
       !proxy_.w_W.allFinite()) {
-    proxy_.X_WP = r.X_WH;
+    proxy_.X_WP = r->X_WH;
     proxy_.v_W = v_WH;
     proxy_.w_W = w_WH;
     eval_.Reset();
     ++stats_.nonfinite_resets;
   }
+}
+
+void ServoLoop::UpdateLinkFade(double dt, double h, const Vec3& v_WH, const Vec3& w_WH,
+                               TickRecord* r) {
   // Link loss (stale IR): fade the output to zero in real time (a late tick
   // only fades faster); once it is zero, hold the proxy on the handle so the
   // coupling stretches nothing and nothing stale is felt when IRs return.
   // The ramp back counts ticks (a late tick never makes it a step).
-  const bool link_down = r.ir.have_ir && r.ir.stale;
+  const bool link_down = r->ir.have_ir && r->ir.stale;
   if (link_down) {
     link_gain_ = config_.link_fade_time_s > 0
                      ? std::max(0.0, link_gain_ - dt / config_.link_fade_time_s)
@@ -195,46 +231,53 @@ void ServoLoop::Tick(std::int64_t now_ns) {
                      : 1.0;
   }
   if (link_gain_ == 0) {
-    proxy_.X_WP = r.X_WH;
+    proxy_.X_WP = r->X_WH;
     proxy_.v_W = v_WH;
     proxy_.w_W = w_WH;
   }
-  r.link_gain = link_gain_;
-  if (!r.ir.have_ir || r.ir.fade <= 0 || link_gain_ <= 0) {
+  r->link_gain = link_gain_;
+}
+
+void ServoLoop::ClassifySource(TickRecord* r) {
+  if (!r->ir.have_ir || r->ir.fade <= 0 || link_gain_ <= 0) {
     ++stats_.ticks_faded;
-    r.source = TickSource::kFaded;
-  } else if (r.ir.source == 1) {
+    r->source = TickSource::kFaded;
+  } else if (r->ir.source == 1) {
     ++stats_.ticks_local;
-    r.source = TickSource::kLocal;
+    r->source = TickSource::kLocal;
   } else {
     ++stats_.ticks_server;
-    r.source = TickSource::kServer;
+    r->source = TickSource::kServer;
   }
-  r.proxy = proxy_;
-  r.W_coupling = CouplingWrench(coupling_.gains, r.X_WH, v_WH, w_WH, proxy_, &r.clamped);
-  if (r.clamped) ++stats_.clamped_ticks;
+}
 
+void ServoLoop::UpdateStartup(double h, TickRecord* r) {
   // Start-up safety: engage once the would-be command has been quiet.
   const StartupParams& su = config_.startup;
   if (!engaged_) {
     const bool quiet =
-        r.W_coupling.force.norm() < su.quiet_force &&
-        (coupling_.gains.max_torque <= 0 || r.W_coupling.torque.norm() < su.quiet_torque);
+        r->W_coupling.force.norm() < su.quiet_force &&
+        (coupling_.gains.max_torque <= 0 || r->W_coupling.torque.norm() < su.quiet_torque);
     quiet_count_ = quiet ? quiet_count_ + 1 : 0;
     if (quiet_count_ >= su.quiet_ticks) engaged_ = true;
   } else {
     startup_gain_ = su.ramp_time_s > 0 ? std::min(1.0, startup_gain_ + h / su.ramp_time_s) : 1.0;
   }
-  r.startup_gain = startup_gain_;
-  r.fail_safe = FailSafeOf(r);
+  r->startup_gain = startup_gain_;
+}
 
+void ServoLoop::CommandDevice(TickRecord* r) {
+  const Mat3& R_WD = config_.X_WD.R;
   const double gain = startup_gain_ * link_gain_;
-  r.F_cmd_W.force = internal::ClampNorm(-gain * r.W_coupling.force, coupling_.gains.max_force);
-  r.F_cmd_W.torque = internal::ClampNorm(-gain * r.W_coupling.torque, coupling_.gains.max_torque);
-  r.F_cmd_D.force = R_WD.transpose() * r.F_cmd_W.force;
-  r.F_cmd_D.torque = R_WD.transpose() * r.F_cmd_W.torque;
-  if (device_->Command(r.F_cmd_D) != DeviceStatus::kOk) ++stats_.device_errors;
+  r->F_cmd_W.force = internal::ClampNorm(-gain * r->W_coupling.force, coupling_.gains.max_force);
+  r->F_cmd_W.torque = internal::ClampNorm(-gain * r->W_coupling.torque, coupling_.gains.max_torque);
+  r->F_cmd_D.force = R_WD.transpose() * r->F_cmd_W.force;
+  r->F_cmd_D.torque = R_WD.transpose() * r->F_cmd_W.torque;
+  if (device_->Command(r->F_cmd_D) != DeviceStatus::kOk) ++stats_.device_errors;
+}
 
+void ServoLoop::AccumulateForceAndEnergy(const TickRecord& r, double dt, const Vec3& v_WH,
+                                         const Vec3& w_WH) {
   // Force statistics and energy into the hand. The wrench of the previous
   // tick was held over the interval that just ended; its work is estimated
   // with the mean of the velocities at both ends.
@@ -254,7 +297,9 @@ void ServoLoop::Tick(std::int64_t now_ns) {
   last_v_W_ = v_WH;
   last_w_W_ = w_WH;
   live_.last_force.store(F, std::memory_order_relaxed);
+}
 
+void ServoLoop::PublishProxy(const TickRecord& r, std::int64_t now_ns) {
   ProxySample& s = proxy_out_.back();
   s.sequence = stats_.ticks + 1;
   s.time_ns = now_ns;
@@ -268,11 +313,6 @@ void ServoLoop::Tick(std::int64_t now_ns) {
     config_.recorder->OnTick(r, s, eval_.has_ir() ? &eval_.current() : nullptr);
   }
   proxy_out_.Publish();
-  PushSample(r);
-
-  ++stats_.ticks;
-  live_.ticks.store(stats_.ticks, std::memory_order_relaxed);
-  stats_.compute_us.Add(1e-3 * static_cast<double>(SteadyClock::Instance().NowNs() - t_begin));
 }
 
 FailSafe ServoLoop::FailSafeOf(const TickRecord& r) const {

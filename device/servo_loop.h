@@ -209,6 +209,18 @@ class ServoLoop {
  private:
   void Run(std::stop_token st);
   /// The output safety state after this tick's gains (r: this tick's record).
+  // Tick's stages, in order.
+  double MeasurePeriod(std::int64_t now_ns);
+  bool ReadDevice(TickRecord* r);  ///< false: unreadable, zero output sent
+  void TakeLinkRequestsAndIr(TickRecord* r);
+  void StepProxyAgainstContact(std::int64_t now_ns, double h, const Vec3& v_WH, const Vec3& w_WH,
+                               TickRecord* r);
+  void UpdateLinkFade(double dt, double h, const Vec3& v_WH, const Vec3& w_WH, TickRecord* r);
+  void ClassifySource(TickRecord* r);
+  void UpdateStartup(double h, TickRecord* r);
+  void CommandDevice(TickRecord* r);
+  void AccumulateForceAndEnergy(const TickRecord& r, double dt, const Vec3& v_WH, const Vec3& w_WH);
+  void PublishProxy(const TickRecord& r, std::int64_t now_ns);
   FailSafe FailSafeOf(const TickRecord& r) const;
   void PushSample(const TickRecord& r);
 
