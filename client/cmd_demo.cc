@@ -203,6 +203,25 @@ void WriteCsv(const std::filesystem::path& path, const std::vector<Run>& runs) {
   if (!f) throw CommandError("demo: error writing " + path.string());
 }
 
+/// The time intervals (s) in which the commanded force exceeds 2 % of the
+/// run's peak (and 0.01 N): where the probe is in contact. Gaps shorter
+/// than 20 ms are bridged, so a bounce reads as one contact.
+std::vector<std::pair<double, double>> ContactBands(const Run& r) {
+  double peak = 0;
+  for (const auto& s : r.samples) peak = std::max(peak, s.F_cmd_D.force.norm());
+  const double threshold = std::max(0.02 * peak, 0.01);
+  std::vector<std::pair<double, double>> bands;
+  for (const auto& s : r.samples) {
+    if (!(s.F_cmd_D.force.norm() > threshold)) continue;
+    if (!bands.empty() && s.t_s - bands.back().second < 0.02) {
+      bands.back().second = s.t_s;
+    } else {
+      bands.emplace_back(s.t_s, s.t_s);
+    }
+  }
+  return bands;
+}
+
 /// Force magnitude (N) and torque magnitude (x100, N cm) versus time, one
 /// panel per mode, plain SVG (client/bench/svg.h).
 void WriteSvg(const std::filesystem::path& path, const std::vector<Run>& runs) {
@@ -216,8 +235,7 @@ void WriteSvg(const std::filesystem::path& path, const std::vector<Run>& runs) {
   svg::Figure fig;
   for (const Run& r : runs) {
     svg::Panel& p = fig.panels.emplace_back();
-    p.title = std::string(ModeLabel(r.mode)) +
-              ": force |F| (N, blue), torque |tau| (N cm, red) vs time (s)";
+    p.title = std::string(ModeLabel(r.mode)) + ": commanded force and torque vs time (s)";
     p.x_min = 0;
     p.x_max = tmax;
     p.y_min = 0;
@@ -225,6 +243,8 @@ void WriteSvg(const std::filesystem::path& path, const std::vector<Run>& runs) {
     p.series.resize(2);  // both first: a reference into the vector survives no growth
     svg::Series& force = p.series[0];
     svg::Series& torque = p.series[1];
+    force.label = "|F| (N)";
+    torque.label = "|tau| (N cm)";
     torque.color = "#c0392b";
     for (const auto& s : r.samples) {
       force.x.push_back(s.t_s);
@@ -232,6 +252,8 @@ void WriteSvg(const std::filesystem::path& path, const std::vector<Run>& runs) {
       torque.x.push_back(s.t_s);
       torque.y.push_back(100 * s.F_cmd_D.torque.norm());
     }
+    p.bands = ContactBands(r);
+    p.band_label = "in contact (|F| > 2 % of peak)";
   }
   try {
     svg::Write(path, fig);

@@ -431,6 +431,7 @@ std::vector<std::filesystem::path> WriteAccuracySvgs(const std::filesystem::path
       panel.y_label = "mean error % (log; 0 drawn at 1e-4)";
       panel.log_x = panel.log_y = true;
       panel.y_min = kFloor;
+      panel.pareto_frontier = true;
       std::map<std::string, std::size_t> by_sweep;
       for (const AccuracyPoint& p : r.points) {
         if (p.mode != mode || p.benchmark != bname) continue;

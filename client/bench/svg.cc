@@ -75,20 +75,44 @@ Axis MakeAxis(bool log, double fixed_lo, double fixed_hi,
   return a;
 }
 
+struct Box {
+  double x0, y0, x1, y1;
+  bool Overlaps(const Box& o) const { return x0 < o.x1 && o.x0 < x1 && y0 < o.y1 && o.y0 < y1; }
+};
+
+// Approximate extent of `text` at `font_size` px (sans-serif averages about
+// 0.58 em per character).
+double TextWidth(const std::string& text, double font_size) {
+  return 0.58 * font_size * static_cast<double>(text.size());
+}
+
+// The points of every scatter series not dominated by another (smaller or
+// equal x and y, one of them strictly), sorted by x.
+std::vector<std::pair<double, double>> ParetoFrontier(const Panel& p) {
+  std::vector<std::pair<double, double>> pts;
+  for (const Series& se : p.series) {
+    if (se.line) continue;
+    for (std::size_t i = 0; i < std::min(se.x.size(), se.y.size()); ++i) {
+      if (std::isfinite(se.x[i]) && std::isfinite(se.y[i])) pts.emplace_back(se.x[i], se.y[i]);
+    }
+  }
+  std::sort(pts.begin(), pts.end());
+  std::vector<std::pair<double, double>> front;
+  for (const auto& q : pts) {
+    if (front.empty() || q.second < front.back().second) {
+      if (!front.empty() && front.back().first == q.first) front.pop_back();
+      front.push_back(q);
+    }
+  }
+  return front;
+}
+
 }  // namespace
 
 std::string Render(const Figure& fig) {
-  const double W = fig.width, H = fig.panel_height, L = 70, R = 20, T = 30, B = 40;
+  const double W = fig.width, H = fig.panel_height, L = 70, T = 30, B = 40;
   const double head = fig.title.empty() ? 0 : 24;
-  std::string s;
-  double notes_h = 0;
-  for (const Panel& p : fig.panels) notes_h += 14.0 * static_cast<double>(p.notes.size());
-  const double total_h = head + H * static_cast<double>(fig.panels.size()) + notes_h;
-  s += Format(
-      "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%g\" height=\"%g\" "
-      "font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%%\" height=\"100%%\" "
-      "fill=\"white\"/>\n",
-      W, total_h);
+  std::string s;  // the panels; the header follows once their height is known
   if (!fig.title.empty()) {
     s += "<title>" + Escape(fig.title) + "</title>\n";
     s += Format("<text x=\"%g\" y=\"16\" font-size=\"11\" fill=\"#444\">", L) + Escape(fig.title) +
@@ -104,6 +128,12 @@ std::string Render(const Figure& fig) {
     const Axis ax = MakeAxis(p.log_x, p.x_min, p.x_max, xs);
     const Axis ay = MakeAxis(p.log_y, p.y_min, p.y_max, ys);
     const double top = y0 + T + 14.0 * static_cast<double>(p.notes.size());
+    // The legend (and labels that fit nowhere on the plot) go right of it.
+    double legend_w = 0;
+    if (!p.band_label.empty()) legend_w = TextWidth(p.band_label, 12);
+    if (p.pareto_frontier) legend_w = std::max(legend_w, TextWidth("Pareto frontier", 12));
+    for (const Series& se : p.series) legend_w = std::max(legend_w, TextWidth(se.label, 12));
+    const double R = legend_w > 0 ? std::clamp(legend_w + 40, 200.0, 0.45 * W) : 20;
     const double pw = W - L - R, ph = H - T - B;
     auto X = [&](double v) { return L + pw * std::clamp(ax.Map(v), -0.02, 1.02); };
     auto Y = [&](double v) { return top + ph * (1 - std::clamp(ay.Map(v), -0.02, 1.02)); };
@@ -112,6 +142,13 @@ std::string Render(const Figure& fig) {
     for (std::size_t i = 0; i < p.notes.size(); ++i) {
       s += Format("<text x=\"%g\" y=\"%g\" font-size=\"11\">", L, y0 + 32 + 14.0 * i) +
            Escape(p.notes[i]) + "</text>\n";
+    }
+    for (const auto& [b0, b1] : p.bands) {
+      const double x0 = X(b0), x1 = X(b1);
+      if (x1 > x0) {
+        s += Format("<rect x=\"%.1f\" y=\"%g\" width=\"%.1f\" height=\"%g\" fill=\"#f3e3b5\"/>\n",
+                    x0, top, x1 - x0, ph);
+      }
     }
     s += Format(
         "<rect x=\"%g\" y=\"%g\" width=\"%g\" height=\"%g\" fill=\"none\" stroke=\"#888\"/>\n", L,
@@ -141,7 +178,41 @@ std::string Render(const Figure& fig) {
                   top + ph / 2) +
            Escape(p.y_label) + "</text>\n";
     }
-    double legend_y = top + 14;
+    const double legend_x = L + pw + 12;
+    double legend_y = top + 10;
+    auto legend_entry = [&](const std::string& swatch, const std::string& text) {
+      s += swatch;
+      s += Format("<text x=\"%g\" y=\"%g\">", legend_x + 15, legend_y) + Escape(text) + "</text>\n";
+      legend_y += 15;
+    };
+    if (!p.band_label.empty()) {
+      legend_entry(Format("<rect x=\"%g\" y=\"%g\" width=\"10\" height=\"10\" fill=\"#f3e3b5\" "
+                          "stroke=\"#d9c27a\"/>\n",
+                          legend_x, legend_y - 9),
+                   p.band_label);
+    }
+    if (p.pareto_frontier) {
+      const auto front = ParetoFrontier(p);
+      if (!front.empty()) {
+        // A staircase: from each frontier point right to the next one's x,
+        // then down to it (what is achievable at a given time budget).
+        s += "<polyline fill=\"none\" stroke=\"#555\" stroke-width=\"1\" "
+             "stroke-dasharray=\"4,3\" points=\"";
+        for (std::size_t i = 0; i < front.size(); ++i) {
+          if (i > 0) s += Format("%.1f,%.1f ", X(front[i].first), Y(front[i - 1].second));
+          s += Format("%.1f,%.1f ", X(front[i].first), Y(front[i].second));
+        }
+        s += "\"/>\n";
+      }
+      legend_entry(Format("<line x1=\"%g\" y1=\"%g\" x2=\"%g\" y2=\"%g\" stroke=\"#555\" "
+                          "stroke-dasharray=\"4,3\"/>\n",
+                          legend_x, legend_y - 4, legend_x + 10, legend_y - 4),
+                   "Pareto frontier");
+    }
+    // Markers first, then the labels, each at the first of eight spots
+    // around its point that overlaps no marker, no placed label and stays
+    // inside the plot.
+    std::vector<Box> taken;
     for (const Series& se : p.series) {
       const std::size_t n = std::min(se.x.size(), se.y.size());
       if (se.line || se.connect) {
@@ -153,28 +224,72 @@ std::string Render(const Figure& fig) {
       if (!se.line) {
         for (std::size_t i = 0; i < n; ++i) {
           const bool big = i < se.highlight.size() && se.highlight[i];
+          const double r = big ? 5.5 : 3.5;
           s += Format("<circle cx=\"%.1f\" cy=\"%.1f\" r=\"%g\" fill=\"%s\"%s/>\n", X(se.x[i]),
-                      Y(se.y[i]), big ? 5.5 : 3.5, se.color.c_str(),
+                      Y(se.y[i]), r, se.color.c_str(),
                       big ? " stroke=\"black\" stroke-width=\"2\"" : "");
-          if (i < se.point_labels.size() && !se.point_labels[i].empty()) {
-            s += Format("<text x=\"%.1f\" y=\"%.1f\" font-size=\"9\" fill=\"%s\">", X(se.x[i]) + 6,
-                        Y(se.y[i]) - 4, se.color.c_str()) +
-                 Escape(se.point_labels[i]) + "</text>\n";
-          }
+          taken.push_back({X(se.x[i]) - r, Y(se.y[i]) - r, X(se.x[i]) + r, Y(se.y[i]) + r});
         }
       }
       if (!se.label.empty()) {
-        s += Format("<rect x=\"%g\" y=\"%g\" width=\"10\" height=\"10\" fill=\"%s\"/>\n",
-                    L + pw - 200, legend_y - 9, se.color.c_str());
-        s += Format("<text x=\"%g\" y=\"%g\">", L + pw - 185, legend_y) + Escape(se.label) +
-             "</text>\n";
-        legend_y += 15;
+        legend_entry(Format("<rect x=\"%g\" y=\"%g\" width=\"10\" height=\"10\" fill=\"%s\"/>\n",
+                            legend_x, legend_y - 9, se.color.c_str()),
+                     se.label);
       }
     }
-    y0 += H + 14.0 * static_cast<double>(p.notes.size());
+    constexpr double kLabelFont = 9;
+    std::vector<std::pair<std::string, std::string>> unplaced;  // text, colour
+    for (const Series& se : p.series) {
+      if (se.line) continue;
+      const std::size_t n = std::min({se.x.size(), se.y.size(), se.point_labels.size()});
+      for (std::size_t i = 0; i < n; ++i) {
+        const std::string& text = se.point_labels[i];
+        if (text.empty()) continue;
+        const double px = X(se.x[i]), py = Y(se.y[i]);
+        const double w = TextWidth(text, kLabelFont), h = kLabelFont + 2;
+        const double spots[8][2] = {{7, -h - 2}, {7, 2},           {-7 - w, -h - 2},
+                                    {-7 - w, 2}, {-w / 2, -h - 7}, {-w / 2, 7},
+                                    {9, -h / 2}, {-9 - w, -h / 2}};
+        bool placed = false;
+        for (const auto& d : spots) {
+          const Box box{px + d[0], py + d[1], px + d[0] + w, py + d[1] + h};
+          if (box.x0 < L || box.x1 > L + pw || box.y0 < top || box.y1 > top + ph) continue;
+          if (std::any_of(taken.begin(), taken.end(),
+                          [&](const Box& t) { return t.Overlaps(box); })) {
+            continue;
+          }
+          taken.push_back(box);
+          s += Format("<text x=\"%.1f\" y=\"%.1f\" font-size=\"%g\" fill=\"%s\">", box.x0,
+                      box.y1 - 2, kLabelFont, se.color.c_str()) +
+               Escape(text) + "</text>\n";
+          placed = true;
+          break;
+        }
+        if (!placed) {
+          unplaced.emplace_back(text + Format(" (%.3g, %.3g)", se.x[i], se.y[i]), se.color);
+        }
+      }
+    }
+    if (!unplaced.empty()) {
+      legend_y += 6;
+      s += Format("<text x=\"%g\" y=\"%g\" font-size=\"10\" fill=\"#444\">", legend_x, legend_y) +
+           "crowded points (x, y):</text>\n";
+      for (const auto& [text, color] : unplaced) {
+        legend_y += 12;
+        s += Format("<text x=\"%g\" y=\"%g\" font-size=\"%g\" fill=\"%s\">", legend_x, legend_y,
+                    kLabelFont, color.c_str()) +
+             Escape(text) + "</text>\n";
+      }
+    }
+    // A long list beside the plot makes the panel taller.
+    y0 = std::max(y0 + H + 14.0 * static_cast<double>(p.notes.size()), legend_y + 10);
   }
-  s += "</svg>\n";
-  return s;
+  return Format(
+             "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"%g\" height=\"%g\" "
+             "font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%%\" "
+             "height=\"100%%\" fill=\"white\"/>\n",
+             W, y0) +
+         s + "</svg>\n";
 }
 
 void Write(const std::filesystem::path& path, const Figure& figure) {

@@ -1,11 +1,15 @@
 // A small SVG plot writer (no plotting runtime needed): stacked panels of
-// line and scatter series with linear or logarithmic axes. Used by
+// line and scatter series with linear or logarithmic axes. The legend sits
+// right of the plot, off the data; point labels are placed where they
+// overlap no other label or point, and those that fit nowhere are listed
+// under the legend instead. Used by
 // `hapticpd demo` (force traces) and `hapticpd bench accuracy` (Pareto plots).
 #pragma once
 
 #include <filesystem>
 #include <limits>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace hapticpd::svg {
@@ -32,6 +36,14 @@ struct Panel {
   double y_min = x_min, y_max = x_min;
   std::vector<Series> series;
   std::vector<std::string> notes;  ///< extra lines under the title
+  /// Shaded x intervals (e.g. where the probe is in contact), drawn behind
+  /// the data, with one legend entry `band_label`.
+  std::vector<std::pair<double, double>> bands;
+  std::string band_label;
+  /// Draws the Pareto frontier of all scatter points (none both faster, i.e.
+  /// smaller x, and better, smaller y, than a frontier point) as a dashed
+  /// staircase.
+  bool pareto_frontier = false;
 };
 
 struct Figure {

@@ -11,7 +11,9 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <random>
+#include <regex>
 #include <set>
 #include <sstream>
 
@@ -277,6 +279,97 @@ TEST(BenchSvg, RendersTitlePanelsAndEscapesText) {
   EXPECT_NE(out.find("a &lt; b &amp; c"), std::string::npos);
   EXPECT_EQ(out.find("a < b"), std::string::npos);
   EXPECT_NE(out.find(">two</text>"), std::string::npos);
+}
+
+// Point labels: none overlaps another label or marker, every label is on
+// the plot or listed beside it, and the legend sits right of the plot.
+TEST(BenchSvg, PointLabelsNeverOverlapAndCrowdedOnesAreListedBesideThePlot) {
+  svg::Figure fig;
+  svg::Panel& p = fig.panels.emplace_back();
+  p.log_x = p.log_y = true;
+  svg::Series& s = p.series.emplace_back();
+  s.label = "settings";
+  s.line = false;
+  for (int i = 0; i < 30; ++i) {  // a tight cluster and a few loners
+    s.x.push_back(i < 24 ? 100 + i : 10 * (i - 23));
+    s.y.push_back(i < 24 ? 0.01 : 1.0 / (i - 22));
+    s.point_labels.push_back("setting " + std::to_string(i));
+  }
+  const std::string out = svg::Render(fig);
+  const double plot_right = fig.width - 200;  // the legend column is at least 200 px wide
+  struct Label {
+    double x, y;
+    std::string text;
+  };
+  std::vector<Label> on_plot;
+  int beside = 0;
+  const std::regex text_re(
+      R"re(<text x="([-0-9.e]+)" y="([-0-9.e]+)" font-size="9"[^>]*>([^<]*)</text>)re");
+  for (auto it = std::sregex_iterator(out.begin(), out.end(), text_re);
+       it != std::sregex_iterator(); ++it) {
+    const double x = std::stod((*it)[1]), y = std::stod((*it)[2]);
+    if (x >= plot_right) {
+      ++beside;
+    } else {
+      on_plot.push_back({x, y, (*it)[3]});
+    }
+  }
+  EXPECT_EQ(static_cast<int>(on_plot.size()) + beside, 30);
+  EXPECT_GT(beside, 0) << "24 labels cannot all fit around one spot";
+  EXPECT_GE(on_plot.size(), 6u);
+  // Boxes as the renderer estimates them (0.58 em a character, 11 px high).
+  for (std::size_t i = 0; i < on_plot.size(); ++i) {
+    for (std::size_t j = i + 1; j < on_plot.size(); ++j) {
+      const Label &a = on_plot[i], &b = on_plot[j];
+      const double wa = 0.58 * 9 * a.text.size(), wb = 0.58 * 9 * b.text.size();
+      const bool overlap =
+          a.x < b.x + wb && b.x < a.x + wa && a.y - 9 < b.y + 2 && b.y - 9 < a.y + 2;
+      EXPECT_FALSE(overlap) << a.text << " overlaps " << b.text;
+    }
+  }
+  const std::size_t legend = out.find(">settings</text>");
+  ASSERT_NE(legend, std::string::npos);
+  const std::size_t tag = out.rfind("<text x=\"", legend);
+  EXPECT_GE(std::stod(out.substr(tag + 9)), plot_right) << "the legend covers the plot";
+}
+
+TEST(BenchSvg, ParetoFrontierIsTheStaircaseOfTheNonDominatedPoints) {
+  svg::Figure fig;
+  svg::Panel& p = fig.panels.emplace_back();
+  p.pareto_frontier = true;
+  p.x_min = p.y_min = 0;
+  p.x_max = p.y_max = 10;
+  svg::Series& s = p.series.emplace_back();
+  s.line = false;
+  s.x = {1, 2, 3, 4, 5};
+  s.y = {5, 3, 4, 1, 2};  // (3, 4) and (5, 2) are dominated
+  const std::string out = svg::Render(fig);
+  const std::size_t at = out.find("stroke-dasharray=\"4,3\" points=\"");
+  ASSERT_NE(at, std::string::npos);
+  const std::size_t begin = out.find("points=\"", at) + 8;
+  const std::string points = out.substr(begin, out.find('"', begin) - begin);
+  std::istringstream is(points);
+  std::vector<std::string> pairs{std::istream_iterator<std::string>(is), {}};
+  EXPECT_EQ(pairs.size(), 5u) << points;  // three points and the two corners between them
+  EXPECT_NE(out.find(">Pareto frontier</text>"), std::string::npos);
+}
+
+TEST(BenchSvg, BandsShadeTheirIntervalsWithOneLegendEntry) {
+  svg::Figure fig;
+  svg::Panel& p = fig.panels.emplace_back();
+  p.bands = {{1, 2}, {4, 6}};
+  p.band_label = "in contact";
+  svg::Series& s = p.series.emplace_back();
+  s.x = {0, 10};
+  s.y = {0, 1};
+  const std::string out = svg::Render(fig);
+  int shaded = 0;
+  for (std::size_t at = out.find("fill=\"#f3e3b5\""); at != std::string::npos;
+       at = out.find("fill=\"#f3e3b5\"", at + 1)) {
+    ++shaded;
+  }
+  EXPECT_EQ(shaded, 3);  // two bands and the legend swatch
+  EXPECT_NE(out.find(">in contact</text>"), std::string::npos);
 }
 
 // ---------------------------------------------------------------------------
