@@ -157,8 +157,6 @@ bool IrFromContactUpdate(const v1::ContactUpdate& u, const Pose& X_AP, std::int6
     ir->target_stiffness = u.target_stiffness();
     ir->target_rotational_stiffness = std::max(0.0, u.target_rotational_stiffness());
   }
-  ir->W_ref.force = ToVec(u.force());
-  ir->W_ref.torque = ToVec(u.torque());
   ir->validity_radius = std::isfinite(u.validity_radius()) ? u.validity_radius() : 0;
   ir->validity_angle = std::isfinite(u.validity_angle()) ? u.validity_angle() : 0;
   ir->compute_time_us = u.compute_time_us();
