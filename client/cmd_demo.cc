@@ -95,7 +95,7 @@ struct RunSpec {
   std::string scene_id = "default";
   std::string probe_shape = "stick";
   std::optional<v1::InlineMesh> probe_mesh;  // instead of probe_shape
-  device::EffectSet effects = device::EffectSet::Legacy();
+  device::EffectSet effects = device::EffectSet::ContactAndTorque();
   device::EffectParams effect_params;
   device::ScriptParams script;  // duration_s is set per run
   /// The probe's lowest point starts 5 mm above this point.

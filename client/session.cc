@@ -886,7 +886,7 @@ SessionStats Session::stats() const {
 }
 
 device::EffectSet EffectsFromSceneConfig(const v1::SceneConfig& c) {
-  if (!c.declared()) return device::EffectSet::Legacy();
+  if (!c.declared()) return device::EffectSet::ContactAndTorque();
   device::EffectSet s;
   for (int e : c.effects()) {
     switch (e) {
