@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "proto/wire/routing.h"
-#include "server/server.h"
+#include "proto/wire/status.h"
 
 namespace hapticpd::cli {
 
@@ -96,7 +96,7 @@ std::string NewRequestId() {
 }
 
 std::string StatusText(const grpc::Status& s) {
-  return std::string(server::StatusCodeName(s.error_code())) + ": " + s.error_message();
+  return std::string(wire::StatusCodeName(s.error_code())) + ": " + s.error_message();
 }
 
 void Check(const grpc::Status& s, const std::string& cmd) {

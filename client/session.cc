@@ -6,6 +6,7 @@
 #include "proto/wire/convert.h"
 #include "proto/wire/ranges.h"
 #include "proto/wire/routing.h"
+#include "proto/wire/status.h"
 
 #include <algorithm>
 #include <chrono>
@@ -51,47 +52,6 @@ void SetPose(const Pose& X, v1::Pose* out) {
   out->mutable_orientation()->set_x(q.x());
   out->mutable_orientation()->set_y(q.y());
   out->mutable_orientation()->set_z(q.z());
-}
-
-const char* CodeName(grpc::StatusCode c) {
-  switch (c) {
-    case grpc::OK:
-      return "OK";
-    case grpc::CANCELLED:
-      return "CANCELLED";
-    case grpc::UNKNOWN:
-      return "UNKNOWN";
-    case grpc::INVALID_ARGUMENT:
-      return "INVALID_ARGUMENT";
-    case grpc::DEADLINE_EXCEEDED:
-      return "DEADLINE_EXCEEDED";
-    case grpc::NOT_FOUND:
-      return "NOT_FOUND";
-    case grpc::ALREADY_EXISTS:
-      return "ALREADY_EXISTS";
-    case grpc::PERMISSION_DENIED:
-      return "PERMISSION_DENIED";
-    case grpc::RESOURCE_EXHAUSTED:
-      return "RESOURCE_EXHAUSTED";
-    case grpc::FAILED_PRECONDITION:
-      return "FAILED_PRECONDITION";
-    case grpc::ABORTED:
-      return "ABORTED";
-    case grpc::OUT_OF_RANGE:
-      return "OUT_OF_RANGE";
-    case grpc::UNIMPLEMENTED:
-      return "UNIMPLEMENTED";
-    case grpc::INTERNAL:
-      return "INTERNAL";
-    case grpc::UNAVAILABLE:
-      return "UNAVAILABLE";
-    case grpc::DATA_LOSS:
-      return "DATA_LOSS";
-    case grpc::UNAUTHENTICATED:
-      return "UNAUTHENTICATED";
-    default:
-      return "UNKNOWN";
-  }
 }
 
 /// Errors retrying cannot fix (a bad hello, wrong credentials).
@@ -331,8 +291,9 @@ std::unique_ptr<Session::Stream> Session::Open(bool first, std::string* error,
     const grpc::Status st = s->rw->Finish();
     clear_ctx();
     *code = st.ok() ? grpc::INTERNAL : st.error_code();
-    *error = st.ok() ? std::string("no welcome from the server")
-                     : std::string(CodeName(st.error_code())) + ": " + st.error_message();
+    *error = st.ok()
+                 ? std::string("no welcome from the server")
+                 : std::string(wire::StatusCodeName(st.error_code())) + ": " + st.error_message();
     return nullptr;
   }
   // The first welcome defines X_PA; later ones (same hello, same probe)
@@ -813,9 +774,9 @@ void Session::Serve(Stream& s, std::stop_token st) {
   if (!st.stop_requested()) {
     std::lock_guard lock(stats_mu_);
     ++counters_.disconnects;
-    counters_.last_error =
-        status.ok() ? std::string("stream ended")
-                    : std::string(CodeName(status.error_code())) + ": " + status.error_message();
+    counters_.last_error = status.ok() ? std::string("stream ended")
+                                       : std::string(wire::StatusCodeName(status.error_code())) +
+                                             ": " + status.error_message();
     spdlog::warn("session: disconnected ({}); reconnecting", counters_.last_error);
   }
 }

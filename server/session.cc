@@ -18,6 +18,7 @@
 #include "pd/scene_pd.h"
 #include "proto/wire/ranges.h"
 #include "proto/wire/routing.h"
+#include "proto/wire/status.h"
 #include "proto/wire/text.h"
 #include "server/convert.h"
 #include "server/scene_file.h"
@@ -285,7 +286,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   void Run() {
     grpc::Status end = Serve();
     if (!end.ok() && end.error_code() != grpc::StatusCode::CANCELLED) {
-      Log()->info("session {} ends: {} {}", session_id_, StatusCodeName(end.error_code()),
+      Log()->info("session {} ends: {} {}", session_id_, wire::StatusCodeName(end.error_code()),
                   wire::Printable(end.error_message(), wire::kMaxStatusMessage));
     }
     {
