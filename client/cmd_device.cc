@@ -8,11 +8,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <fstream>
 #include <iostream>
 #include <limits>
 #include <memory>
-#include <sstream>
 #include <thread>
 
 #include "client/rpc_util.h"
@@ -48,19 +46,6 @@ struct DeviceOptions {
   std::string local_model = "on";
   std::uint32_t patch_triangles = 8192;
 };
-
-std::shared_ptr<grpc::ChannelCredentials> Credentials(const ConnectionOptions& o) {
-  if (o.tls_ca.empty() && !o.tls) return grpc::InsecureChannelCredentials();
-  grpc::SslCredentialsOptions ssl;
-  if (!o.tls_ca.empty()) {
-    std::ifstream in(o.tls_ca);
-    if (!in) throw CommandError("--tls-ca: cannot open " + o.tls_ca);
-    std::ostringstream ss;
-    ss << in.rdbuf();
-    ssl.pem_root_certs = ss.str();
-  }
-  return grpc::SslCredentials(ssl);
-}
 
 Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
 
@@ -103,7 +88,7 @@ void RunDevice(const DeviceOptions& o) {
   client::SessionOptions so;
   so.server = o.conn.server;
   so.token = o.conn.token;
-  so.credentials = Credentials(o.conn);
+  so.credentials = MakeCredentials(o.conn);
   so.connect_timeout_s = o.conn.timeout_s > 0 ? std::min(o.conn.timeout_s, 10.0) : 10.0;
   v1::Hello& h = so.hello;
   h.set_scene_id(o.scene);
