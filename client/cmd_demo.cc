@@ -31,6 +31,7 @@
 #include "device/simulated_device.h"
 #include "hapticpd/v1/scene.grpc.pb.h"
 #include "pd/mesh.h"
+#include "proto/wire/convert.h"
 #include "proto/wire/routing.h"
 #include "server/convert.h"
 #include "server/scene_file.h"
@@ -54,8 +55,6 @@ struct DemoOptions {
   ViewerFlags viewer;  // --listen, --viewer-token, --tls-cert, --tls-key, --rate
 };
 
-Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
-
 v1::Body AddShape(v1::SceneService::Stub& stub, const std::string& shape, const std::string& id,
                   const Vec3& at) {
   grpc::ClientContext ctx;
@@ -68,10 +67,7 @@ v1::Body AddShape(v1::SceneService::Stub& stub, const std::string& shape, const 
   h->set_scene_id("default");
   h->set_shape(shape);
   h->mutable_spec()->set_body_id(id);
-  h->mutable_spec()->mutable_pose()->mutable_position()->set_x(at.x());
-  h->mutable_spec()->mutable_pose()->mutable_position()->set_y(at.y());
-  h->mutable_spec()->mutable_pose()->mutable_position()->set_z(at.z());
-  h->mutable_spec()->mutable_pose()->mutable_orientation()->set_w(1);
+  wire::ToProto(Pose::FromTranslation(at), h->mutable_spec()->mutable_pose());
   w->Write(r);
   w->WritesDone();
   const grpc::Status s = w->Finish();
@@ -95,7 +91,7 @@ struct RunSpec {
   std::string scene_id = "default";
   std::string probe_shape = "stick";
   std::optional<v1::InlineMesh> probe_mesh;  // instead of probe_shape
-  device::EffectSet effects = device::EffectSet::Legacy();
+  device::EffectSet effects = device::EffectSet::ContactAndTorque();
   device::EffectParams effect_params;
   device::ScriptParams script;  // duration_s is set per run
   /// The probe's lowest point starts 5 mm above this point.
@@ -168,12 +164,9 @@ std::pair<Vec3, Vec3> SceneBox(const v1::Scene& scene) {
   Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity());
   Vec3 hi = -lo;
   for (const v1::Body& b : scene.bodies()) {
-    const auto& q = b.pose().orientation();
-    const Vec3 t = ToVec(b.pose().position());
-    const Pose X = b.pose().has_orientation()
-                       ? Pose::FromQuaternion(device::Quat(q.w(), q.x(), q.y(), q.z()), t)
-                       : Pose::FromTranslation(t);
-    const Vec3 a = ToVec(b.mesh_info().aabb_min()), c = ToVec(b.mesh_info().aabb_max());
+    const Pose X = wire::FromProtoUnchecked(b.pose());
+    const Vec3 a = wire::FromProtoUnchecked(b.mesh_info().aabb_min()),
+               c = wire::FromProtoUnchecked(b.mesh_info().aabb_max());
     for (int i = 0; i < 8; ++i) {
       const Vec3 p((i & 1) ? c.x() : a.x(), (i & 2) ? c.y() : a.y(), (i & 4) ? c.z() : a.z());
       lo = lo.cwiseMin(X * p);
@@ -333,10 +326,10 @@ void RunDemo(const DemoOptions& o) {
   char scene_line[512];
   if (!file) {
     const v1::Body knot = AddShape(*scenes, "torusknot", "knot", Vec3::Zero());
-    const Vec3 kmin = ToVec(knot.mesh_info().aabb_min());
+    const Vec3 kmin = wire::FromProtoUnchecked(knot.mesh_info().aabb_min());
     const Vec3 cup_at(kmin.x() - 0.09, 0, kmin.z());  // clear of the knot
     const v1::Body cup = AddShape(*scenes, "cup", "cup", cup_at);
-    const Vec3 cup_max = cup_at + ToVec(cup.mesh_info().aabb_max());
+    const Vec3 cup_max = cup_at + wire::FromProtoUnchecked(cup.mesh_info().aabb_max());
     // Above the cup's axis, the stick's tip 5 mm above the rim; the hand
     // pushes the tip down to 5 mm below the cup's base, i.e. into its floor.
     base.above = Vec3(cup_at.x(), cup_at.y(), cup_max.z());

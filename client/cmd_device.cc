@@ -8,11 +8,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <fstream>
 #include <iostream>
 #include <limits>
 #include <memory>
-#include <sstream>
 #include <thread>
 
 #include "client/rpc_util.h"
@@ -22,6 +20,7 @@
 #include "device/simulated_device.h"
 #include "hapticpd/v1/scene.grpc.pb.h"
 #include "pd/mesh.h"
+#include "proto/wire/convert.h"
 #include "server/convert.h"
 
 namespace hapticpd::cli {
@@ -49,28 +48,6 @@ struct DeviceOptions {
   std::uint32_t patch_triangles = 8192;
 };
 
-std::shared_ptr<grpc::ChannelCredentials> Credentials(const ConnectionOptions& o) {
-  if (o.tls_ca.empty() && !o.tls) return grpc::InsecureChannelCredentials();
-  grpc::SslCredentialsOptions ssl;
-  if (!o.tls_ca.empty()) {
-    std::ifstream in(o.tls_ca);
-    if (!in) throw CommandError("--tls-ca: cannot open " + o.tls_ca);
-    std::ostringstream ss;
-    ss << in.rdbuf();
-    ssl.pem_root_certs = ss.str();
-  }
-  return grpc::SslCredentials(ssl);
-}
-
-Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
-
-Pose FromWire(const v1::Pose& p) {
-  const Vec3 t = ToVec(p.position());
-  if (!p.has_orientation()) return Pose::FromTranslation(t);
-  const auto& q = p.orientation();
-  return Pose::FromQuaternion(device::Quat(q.w(), q.x(), q.y(), q.z()), t);
-}
-
 /// Default start: centred above the scene's bounding box (bodies other than
 /// the probe body), the probe's lowest point 5 mm above its top.
 Pose DefaultStart(const DeviceOptions& o, const v1::Welcome& welcome) {
@@ -84,8 +61,9 @@ Pose DefaultStart(const DeviceOptions& o, const v1::Welcome& welcome) {
   Vec3 hi = -lo;
   for (const v1::Body& b : scene.bodies()) {
     if (b.body_id() == o.probe_body) continue;
-    const Pose X = FromWire(b.pose());
-    const Vec3 a = ToVec(b.mesh_info().aabb_min()), c = ToVec(b.mesh_info().aabb_max());
+    const Pose X = wire::FromProtoUnchecked(b.pose());
+    const Vec3 a = wire::FromProtoUnchecked(b.mesh_info().aabb_min()),
+               c = wire::FromProtoUnchecked(b.mesh_info().aabb_max());
     for (int i = 0; i < 8; ++i) {
       const Vec3 p((i & 1) ? c.x() : a.x(), (i & 2) ? c.y() : a.y(), (i & 4) ? c.z() : a.z());
       lo = lo.cwiseMin(X * p);
@@ -103,7 +81,7 @@ void RunDevice(const DeviceOptions& o) {
   client::SessionOptions so;
   so.server = o.conn.server;
   so.token = o.conn.token;
-  so.credentials = Credentials(o.conn);
+  so.credentials = MakeCredentials(o.conn);
   so.connect_timeout_s = o.conn.timeout_s > 0 ? std::min(o.conn.timeout_s, 10.0) : 10.0;
   v1::Hello& h = so.hello;
   h.set_scene_id(o.scene);
@@ -161,7 +139,7 @@ void RunDevice(const DeviceOptions& o) {
     }
   }
   std::optional<Pose> start;
-  if (!o.start.empty()) start = FromWire(ParsePose(o.start, "--start"));
+  if (!o.start.empty()) start = wire::FromProtoUnchecked(ParsePose(o.start, "--start"));
 
   // --- connect, then build the device and the loop around the welcome
   client::Session session(so);

@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "proto/wire/routing.h"
-#include "server/server.h"
+#include "proto/wire/status.h"
 
 namespace hapticpd::cli {
 
@@ -46,24 +46,23 @@ void AddConnectionOptions(CLI::App* cmd, ConnectionOptions* o) {
       ->capture_default_str();
 }
 
-std::shared_ptr<grpc::Channel> MakeChannel(const ConnectionOptions& o) {
-  std::shared_ptr<grpc::ChannelCredentials> creds;
-  if (!o.tls_ca.empty() || o.tls) {
-    grpc::SslCredentialsOptions ssl;
-    if (!o.tls_ca.empty()) {
-      std::ifstream in(o.tls_ca);
-      if (!in) throw CommandError("--tls-ca: cannot open " + o.tls_ca);
-      std::ostringstream ss;
-      ss << in.rdbuf();
-      ssl.pem_root_certs = ss.str();
-    }
-    creds = grpc::SslCredentials(ssl);
-  } else {
-    creds = grpc::InsecureChannelCredentials();
+std::shared_ptr<grpc::ChannelCredentials> MakeCredentials(const ConnectionOptions& o) {
+  if (o.tls_ca.empty() && !o.tls) return grpc::InsecureChannelCredentials();
+  grpc::SslCredentialsOptions ssl;
+  if (!o.tls_ca.empty()) {
+    std::ifstream in(o.tls_ca);
+    if (!in) throw CommandError("--tls-ca: cannot open " + o.tls_ca);
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    ssl.pem_root_certs = ss.str();
   }
+  return grpc::SslCredentials(ssl);
+}
+
+std::shared_ptr<grpc::Channel> MakeChannel(const ConnectionOptions& o) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(256 << 20);
-  return grpc::CreateCustomChannel(o.server, creds, args);
+  return grpc::CreateCustomChannel(o.server, MakeCredentials(o), args);
 }
 
 std::unique_ptr<grpc::ClientContext> MakeContext(const ConnectionOptions& o, bool streaming) {
@@ -96,7 +95,7 @@ std::string NewRequestId() {
 }
 
 std::string StatusText(const grpc::Status& s) {
-  return std::string(server::StatusCodeName(s.error_code())) + ": " + s.error_message();
+  return std::string(wire::StatusCodeName(s.error_code())) + ": " + s.error_message();
 }
 
 void Check(const grpc::Status& s, const std::string& cmd) {

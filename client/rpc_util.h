@@ -25,6 +25,10 @@ struct ConnectionOptions {
 /// Adds --server, --token, --tls, --tls-ca, --timeout to `cmd`.
 void AddConnectionOptions(CLI::App* cmd, ConnectionOptions* o);
 
+/// Plaintext, or TLS (--tls: the system's roots; --tls-ca: that PEM CA)
+/// when either is given. Throws CommandError when --tls-ca cannot be read.
+std::shared_ptr<grpc::ChannelCredentials> MakeCredentials(const ConnectionOptions& o);
+/// A channel to --server with MakeCredentials' credentials.
 std::shared_ptr<grpc::Channel> MakeChannel(const ConnectionOptions& o);
 /// A context carrying the token and (unless `streaming`) the deadline.
 /// For calls that name no scene (ListScenes).

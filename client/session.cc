@@ -6,6 +6,7 @@
 #include "proto/wire/convert.h"
 #include "proto/wire/ranges.h"
 #include "proto/wire/routing.h"
+#include "proto/wire/status.h"
 
 #include <algorithm>
 #include <chrono>
@@ -24,11 +25,9 @@ using device::Vec3;
 /// coordinate range): larger numbers overflow in the servo loop's products.
 bool Finite(const Vec3& v) { return v.allFinite() && v.cwiseAbs().maxCoeff() <= 1e6; }
 
-Vec3 ToVec(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
-
 /// Absent orientation means identity (proto3 default is all zeros).
 bool ToPose(const v1::Pose& p, Pose* out) {
-  const Vec3 t = ToVec(p.position());
+  const Vec3 t = wire::FromProtoUnchecked(p.position());
   if (!Finite(t)) return false;
   if (!p.has_orientation()) {
     *out = Pose::FromTranslation(t);
@@ -40,58 +39,6 @@ bool ToPose(const v1::Pose& p, Pose* out) {
   if (!std::isfinite(n) || n < 0.5) return false;
   *out = Pose::FromQuaternion(quat, t);
   return true;
-}
-
-void SetPose(const Pose& X, v1::Pose* out) {
-  out->mutable_position()->set_x(X.t.x());
-  out->mutable_position()->set_y(X.t.y());
-  out->mutable_position()->set_z(X.t.z());
-  const device::Quat q = X.Rotation();
-  out->mutable_orientation()->set_w(q.w());
-  out->mutable_orientation()->set_x(q.x());
-  out->mutable_orientation()->set_y(q.y());
-  out->mutable_orientation()->set_z(q.z());
-}
-
-const char* CodeName(grpc::StatusCode c) {
-  switch (c) {
-    case grpc::OK:
-      return "OK";
-    case grpc::CANCELLED:
-      return "CANCELLED";
-    case grpc::UNKNOWN:
-      return "UNKNOWN";
-    case grpc::INVALID_ARGUMENT:
-      return "INVALID_ARGUMENT";
-    case grpc::DEADLINE_EXCEEDED:
-      return "DEADLINE_EXCEEDED";
-    case grpc::NOT_FOUND:
-      return "NOT_FOUND";
-    case grpc::ALREADY_EXISTS:
-      return "ALREADY_EXISTS";
-    case grpc::PERMISSION_DENIED:
-      return "PERMISSION_DENIED";
-    case grpc::RESOURCE_EXHAUSTED:
-      return "RESOURCE_EXHAUSTED";
-    case grpc::FAILED_PRECONDITION:
-      return "FAILED_PRECONDITION";
-    case grpc::ABORTED:
-      return "ABORTED";
-    case grpc::OUT_OF_RANGE:
-      return "OUT_OF_RANGE";
-    case grpc::UNIMPLEMENTED:
-      return "UNIMPLEMENTED";
-    case grpc::INTERNAL:
-      return "INTERNAL";
-    case grpc::UNAVAILABLE:
-      return "UNAVAILABLE";
-    case grpc::DATA_LOSS:
-      return "DATA_LOSS";
-    case grpc::UNAUTHENTICATED:
-      return "UNAUTHENTICATED";
-    default:
-      return "UNKNOWN";
-  }
 }
 
 /// Errors retrying cannot fix (a bad hello, wrong credentials).
@@ -117,8 +64,8 @@ bool IrFromContactUpdate(const v1::ContactUpdate& u, const Pose& X_AP, std::int6
   ir->X_WP_target = ir->X_WP_ref;
   const Vec3 c = ir->X_WP_ref.t;
   for (const v1::ContactRow& r : u.rows()) {
-    const Vec3 p = ToVec(r.point());
-    Vec3 n = ToVec(r.normal());
+    const Vec3 p = wire::FromProtoUnchecked(r.point());
+    Vec3 n = wire::FromProtoUnchecked(r.normal());
     const double depth = r.depth(), k = r.stiffness();
     // Beyond these no server answer goes (its ranges: 1e4 m, 1e7 N/m);
     // past them the loop's products overflow.
@@ -157,8 +104,6 @@ bool IrFromContactUpdate(const v1::ContactUpdate& u, const Pose& X_AP, std::int6
     ir->target_stiffness = u.target_stiffness();
     ir->target_rotational_stiffness = std::max(0.0, u.target_rotational_stiffness());
   }
-  ir->W_ref.force = ToVec(u.force());
-  ir->W_ref.torque = ToVec(u.torque());
   ir->validity_radius = std::isfinite(u.validity_radius()) ? u.validity_radius() : 0;
   ir->validity_angle = std::isfinite(u.validity_angle()) ? u.validity_angle() : 0;
   ir->compute_time_us = u.compute_time_us();
@@ -171,7 +116,7 @@ std::string PatchDeltaFromProto(const v1::GeometryPatch& g, std::size_t max_tria
   out->sequence = g.sequence();
   out->scene_revision = g.scene_revision();
   out->server_time_ns = g.server_time_ns();
-  out->center_W = ToVec(g.center());
+  out->center_W = wire::FromProtoUnchecked(g.center());
   out->radius = g.radius();
   out->wire_bytes = g.ByteSizeLong();
   out->bodies.clear();
@@ -190,8 +135,8 @@ std::string PatchDeltaFromProto(const v1::GeometryPatch& g, std::size_t max_tria
     d.triangle_count = b.triangle_count();
     d.vertex_count = b.vertex_count();
     if (!ToPose(b.pose(), &d.X_WB)) return field + ".pose: not a finite pose";
-    d.v_W = ToVec(b.velocity().linear());
-    d.w_W = ToVec(b.velocity().angular());
+    d.v_W = wire::FromProtoUnchecked(b.velocity().linear());
+    d.w_W = wire::FromProtoUnchecked(b.velocity().angular());
     d.pose_time_ns = b.pose_time_ns();
     const v1::Material& m = b.material();
     d.material.stiffness = m.stiffness();
@@ -199,7 +144,7 @@ std::string PatchDeltaFromProto(const v1::GeometryPatch& g, std::size_t max_tria
     d.material.damping = m.damping();
     d.material.static_friction = m.static_friction();
     d.material.dynamic_friction = m.dynamic_friction();
-    d.cover_center_B = ToVec(b.cover_center());
+    d.cover_center_B = wire::FromProtoUnchecked(b.cover_center());
     d.cover_radius = b.cover_radius();
     d.truncated = b.truncated();
     if (!Finite(d.v_W) || !Finite(d.w_W) || !Finite(d.cover_center_B) ||
@@ -333,8 +278,9 @@ std::unique_ptr<Session::Stream> Session::Open(bool first, std::string* error,
     const grpc::Status st = s->rw->Finish();
     clear_ctx();
     *code = st.ok() ? grpc::INTERNAL : st.error_code();
-    *error = st.ok() ? std::string("no welcome from the server")
-                     : std::string(CodeName(st.error_code())) + ": " + st.error_message();
+    *error = st.ok()
+                 ? std::string("no welcome from the server")
+                 : std::string(wire::StatusCodeName(st.error_code())) + ": " + st.error_message();
     return nullptr;
   }
   // The first welcome defines X_PA; later ones (same hello, same probe)
@@ -557,7 +503,7 @@ void Session::DeliverLoop(const std::atomic<bool>& done) {
 bool Session::WritePose(Stream& s, const device::ProxySample& x, v1::CoupleRequest* req) {
   auto* p = req->mutable_pose();
   p->set_sequence(x.sequence);
-  SetPose(x.X_WA, p->mutable_pose());
+  wire::ToProto(x.X_WA, p->mutable_pose());
   p->set_client_time_ns(x.time_ns);
   if (local_) p->set_round_trip_us(rtt_estimate_us_.load(std::memory_order_relaxed));
   if (!s.rw->Write(*req)) return false;
@@ -681,8 +627,8 @@ bool Session::TelemetryStep(Stream& s, std::int64_t now, const device::ProxySamp
       t->set_source(static_cast<v1::ContactSource>(l.source));
     }
     if (latest != nullptr && latest->sequence > 0) {
-      SetPose(latest->X_WH, t->mutable_handle_pose());
-      SetPose(latest->X_WA, t->mutable_proxy_pose());
+      wire::ToProto(latest->X_WH, t->mutable_handle_pose());
+      wire::ToProto(latest->X_WA, t->mutable_proxy_pose());
     }
     if (link_ && !flush) {
       const auto n = static_cast<std::uint64_t>(c->force_size());
@@ -815,9 +761,9 @@ void Session::Serve(Stream& s, std::stop_token st) {
   if (!st.stop_requested()) {
     std::lock_guard lock(stats_mu_);
     ++counters_.disconnects;
-    counters_.last_error =
-        status.ok() ? std::string("stream ended")
-                    : std::string(CodeName(status.error_code())) + ": " + status.error_message();
+    counters_.last_error = status.ok() ? std::string("stream ended")
+                                       : std::string(wire::StatusCodeName(status.error_code())) +
+                                             ": " + status.error_message();
     spdlog::warn("session: disconnected ({}); reconnecting", counters_.last_error);
   }
 }
@@ -888,7 +834,7 @@ SessionStats Session::stats() const {
 }
 
 device::EffectSet EffectsFromSceneConfig(const v1::SceneConfig& c) {
-  if (!c.declared()) return device::EffectSet::Legacy();
+  if (!c.declared()) return device::EffectSet::ContactAndTorque();
   device::EffectSet s;
   for (int e : c.effects()) {
     switch (e) {

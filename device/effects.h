@@ -41,7 +41,7 @@ class EffectSet {
  public:
   constexpr EffectSet() = default;
   /// What a scene that declares nothing gets: contact and torque.
-  static constexpr EffectSet Legacy() {
+  static constexpr EffectSet ContactAndTorque() {
     return EffectSet().With(Effect::kContact).With(Effect::kTorque);
   }
   static constexpr EffectSet All() { return EffectSet((1u << kNumEffects) - 1); }
@@ -98,7 +98,8 @@ using EffectFn = void (*)(const EffectParams&, const EffectInput&, EffectState*,
 /// The declared effects as a fixed array of function pointers, built once.
 class EffectPipeline {
  public:
-  explicit EffectPipeline(EffectSet set = EffectSet::Legacy(), const EffectParams& params = {});
+  explicit EffectPipeline(EffectSet set = EffectSet::ContactAndTorque(),
+                          const EffectParams& params = {});
 
   /// The wrench and stiffness of all stages on the proxy. No allocation.
   void Apply(const EffectInput& in, Vec6* W, Mat6* K) {

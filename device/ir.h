@@ -53,10 +53,9 @@ struct IntermediateRep {
   Pose X_WP_target;
   double target_stiffness = 0;             ///< N/m
   double target_rotational_stiffness = 0;  ///< N m/rad
-  Wrench W_ref;                ///< penalty wrench at X_WP_ref (diagnostic; torque about P)
-  double validity_radius = 0;  ///< m from p_ref; <= 0: unbounded
-  double validity_angle = 0;   ///< rad from R_ref; <= 0: unbounded
-  double compute_time_us = 0;  ///< producer's PD time
+  double validity_radius = 0;              ///< m from p_ref; <= 0: unbounded
+  double validity_angle = 0;               ///< rad from R_ref; <= 0: unbounded
+  double compute_time_us = 0;              ///< producer's PD time
   /// Which model answered: 0 the server's PD answer, 1 the local patch
   /// model (device/local_model.h); counted per tick in ServoStats.
   std::uint8_t source = 0;

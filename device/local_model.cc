@@ -310,11 +310,6 @@ void IrFromContactModel(const pd::ContactModel& m, const ProxySample& x, const P
     ir->target_stiffness = m.target_stiffness;
     ir->target_rotational_stiffness = torque ? m.target_rotational_stiffness : 0;
   }
-  Vec6 W;
-  Mat6 K;
-  EvaluateIrRaw(*ir, x.X_WP, &W, &K);
-  ir->W_ref.force = W.head<3>();
-  ir->W_ref.torque = W.tail<3>();
   ir->validity_radius = m.validity_radius;
   ir->validity_angle = m.validity_angle;
 }

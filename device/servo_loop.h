@@ -105,7 +105,7 @@ struct ServoConfig {
   int realtime_priority = 80;
   /// The scene's effects (effects.h), composed once at construction.
   /// Without kTorque the loop commands no torque (3-DoF rendering).
-  EffectSet effects = EffectSet::Legacy();
+  EffectSet effects = EffectSet::ContactAndTorque();
   EffectParams effect_params;  ///< proxy_mass and period_s are set by the loop
   /// Ticks the sample ring (ServoLoop::samples()) holds for its consumer; a
   /// tick that finds it full is counted lost. 0: no ring, no samples.

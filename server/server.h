@@ -164,9 +164,6 @@ class HapticServer {
   std::unique_ptr<Impl> impl_;
 };
 
-/// One-line text for a status code, e.g. "INVALID_ARGUMENT".
-const char* StatusCodeName(int code);
-
 /// `hapticpd serve`'s state directory when --state is not given:
 /// $XDG_STATE_HOME/hapticpd, else $HOME/.local/state/hapticpd (empty when
 /// neither variable is set).

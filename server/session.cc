@@ -18,6 +18,7 @@
 #include "pd/scene_pd.h"
 #include "proto/wire/ranges.h"
 #include "proto/wire/routing.h"
+#include "proto/wire/status.h"
 #include "proto/wire/text.h"
 #include "server/convert.h"
 #include "server/scene_file.h"
@@ -106,9 +107,9 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
           bad = FromProto(req_.pose().pose(), "pose.pose", &X);
           if (bad.ok()) {
             const std::uint64_t seq = req_.pose().sequence();
-            if (have_last_seq_ && seq <= last_seq_) {
-              ++stale_poses_;  // out of order or repeated: not newer than what we have
-            } else {
+            // A pose not newer than the last one taken (out of order or
+            // repeated) is dropped.
+            if (!have_last_seq_ || seq > last_seq_) {
               if (has_pose_) ++superseded_;
               has_pose_ = true;
               have_last_seq_ = true;
@@ -285,7 +286,7 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   void Run() {
     grpc::Status end = Serve();
     if (!end.ok() && end.error_code() != grpc::StatusCode::CANCELLED) {
-      Log()->info("session {} ends: {} {}", session_id_, StatusCodeName(end.error_code()),
+      Log()->info("session {} ends: {} {}", session_id_, wire::StatusCodeName(end.error_code()),
                   wire::Printable(end.error_message(), wire::kMaxStatusMessage));
     }
     {
@@ -525,7 +526,6 @@ class CoupleReactor final : public grpc::ServerBidiReactor<v1::CoupleRequest, v1
   bool idle_ = false;  ///< the session ends for the idle timeout
   bool done_ = false;  ///< OnDone has run
   std::uint64_t last_seq_ = 0;
-  std::uint64_t stale_poses_ = 0;
   std::uint64_t last_telemetry_seq_ = 0;  ///< the reader's own (reads never overlap)
 
   // Writer (wr_mu_).

@@ -12,7 +12,7 @@
 #include "client/viewer/scene_json.h"
 #include "hapticpd/v1/scene.grpc.pb.h"
 #include "proto/wire/routing.h"
-#include "server/server.h"
+#include "proto/wire/status.h"
 
 namespace hapticpd::viewer {
 namespace {
@@ -210,8 +210,8 @@ struct Viewer::Impl {
       std::unique_lock lock(mu);
       ctx = nullptr;
       if (stopping) return;
-      const std::string error = fmt::format("{}: {}", server::StatusCodeName(status.error_code()),
-                                            status.error_message());
+      const std::string error =
+          fmt::format("{}: {}", wire::StatusCodeName(status.error_code()), status.error_message());
       if (error != last_error) {
         const bool operator_must_act = status.error_code() == grpc::StatusCode::UNAUTHENTICATED ||
                                        status.error_code() == grpc::StatusCode::PERMISSION_DENIED ||

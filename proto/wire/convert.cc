@@ -342,6 +342,15 @@ grpc::Status ValidateId(const std::string& id, std::string_view field) {
   return grpc::Status::OK;
 }
 
+Vec3 FromProtoUnchecked(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
+
+Pose FromProtoUnchecked(const v1::Pose& p) {
+  const Vec3 t = FromProtoUnchecked(p.position());
+  if (!p.has_orientation()) return Pose::FromTranslation(t);
+  const auto& q = p.orientation();
+  return Pose::FromQuaternion(Quat(q.w(), q.x(), q.y(), q.z()), t);
+}
+
 void ToProto(const Vec3& v, v1::Vec3* out) {
   out->set_x(v.x());
   out->set_y(v.y());

@@ -86,6 +86,14 @@ grpc::Status MeshFromShape(const std::string& spec, std::string_view field,
 /// Scene and body ids: 1-64 characters from [A-Za-z0-9_.-].
 grpc::Status ValidateId(const std::string& id, std::string_view field);
 
+/// The wire vector as it is, unchecked: for numbers a server sends its
+/// clients or ones checked already (FromProto is the checked reading).
+Vec3 FromProtoUnchecked(const v1::Vec3& v);
+/// The wire pose as it is, unchecked: an absent orientation means identity,
+/// a present quaternion is normalised but neither its norm nor its
+/// finiteness is checked.
+Pose FromProtoUnchecked(const v1::Pose& p);
+
 void ToProto(const Vec3& v, v1::Vec3* out);
 void ToProto(const Pose& p, v1::Pose* out);
 void ToProto(const pd::Material& m, v1::Material* out);

@@ -191,8 +191,9 @@ class Parser {
     if (b.contains("movable")) spec.set_movable(Bool(b["movable"], key + ".movable"));
     if (b.contains("pose")) *spec.mutable_pose() = ParsePose(b["pose"], key + ".pose");
     if (b.contains("velocity")) {
-      // Informational, as over the wire (BodySpec.velocity); kept by
-      // `scene export` / `scene import`.
+      // As over the wire (BodySpec.velocity): the body moves at this twist
+      // from the time it is added (server/scene.h PoseAt), where the PD and
+      // the geometry patches find it; kept by `scene export` / `scene import`.
       const Json& v = b["velocity"];
       const std::string vk = key + ".velocity";
       RequireObject(v, vk);

@@ -138,7 +138,7 @@ int main(int argc, char** argv) {
   const Config configs[] = {
       {"0 effects (none)", EffectSet()},
       {"1 effect (contact, 3-DoF)", contact},
-      {"contact + torque (6-DoF)", EffectSet::Legacy()},
+      {"contact + torque (6-DoF)", EffectSet::ContactAndTorque()},
       {"contact + friction", contact.With(Effect::kFriction)},
       {"contact + damping", contact.With(Effect::kDamping)},
       {"contact + texture", contact.With(Effect::kTexture)},

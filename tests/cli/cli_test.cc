@@ -353,5 +353,14 @@ TEST(CliTest, PdBadInput) {
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --no-such-flag", "--no-such-flag");
 }
 
+// The network commands and `device` build their TLS credentials the same
+// way: an unreadable CA file is one line naming it, before any connection.
+TEST(CliTest, UnreadableTlsCaIsOneLineForEveryNetworkCommand) {
+  const std::string ca = " --tls-ca /nonexistent/ca.pem";
+  const std::string what = "--tls-ca: cannot open /nonexistent/ca.pem";
+  ExpectOneLineError("scene list" + ca, what);
+  ExpectOneLineError("device --scene s --probe shape:sphere:0.01" + ca, what);
+}
+
 }  // namespace
 }  // namespace hapticpd::testing

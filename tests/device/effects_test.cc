@@ -107,7 +107,7 @@ ScriptParams Script(HandScript s, double duration_s, double travel = 0.01) {
 // --- The pipeline -------------------------------------------------------------
 
 TEST(EffectPipeline, ComposesOnlyTheDeclaredEffects) {
-  EXPECT_EQ(EffectPipeline(EffectSet::Legacy()).description(), "contact(force+torque)");
+  EXPECT_EQ(EffectPipeline(EffectSet::ContactAndTorque()).description(), "contact(force+torque)");
   EXPECT_EQ(EffectPipeline(EffectSet().With(Effect::kContact)).description(), "contact(force)");
   EXPECT_EQ(EffectPipeline(EffectSet()).description(), "none");
   EXPECT_EQ(EffectPipeline(EffectSet()).num_stages(), 0);

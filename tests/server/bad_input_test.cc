@@ -17,6 +17,7 @@
 #include <string>
 #include <vector>
 
+#include "proto/wire/status.h"
 #include "tests/server/server_harness.h"
 
 namespace hapticpd::testing {
@@ -53,21 +54,6 @@ std::string Snapshot(v1::SceneService::Stub& stub) {
     out += scene.SerializeAsString();
   }
   return out;
-}
-
-std::string CodeName(grpc::StatusCode c) {
-  static const std::map<grpc::StatusCode, std::string> names = {
-      {grpc::StatusCode::OK, "OK"},
-      {grpc::StatusCode::INVALID_ARGUMENT, "INVALID_ARGUMENT"},
-      {grpc::StatusCode::NOT_FOUND, "NOT_FOUND"},
-      {grpc::StatusCode::ALREADY_EXISTS, "ALREADY_EXISTS"},
-      {grpc::StatusCode::PERMISSION_DENIED, "PERMISSION_DENIED"},
-      {grpc::StatusCode::UNAUTHENTICATED, "UNAUTHENTICATED"},
-      {grpc::StatusCode::RESOURCE_EXHAUSTED, "RESOURCE_EXHAUSTED"},
-      {grpc::StatusCode::FAILED_PRECONDITION, "FAILED_PRECONDITION"},
-  };
-  auto it = names.find(c);
-  return it == names.end() ? std::to_string(static_cast<int>(c)) : it->second;
 }
 
 v1::AddBodyRequest Chunk(std::string bytes) {
@@ -167,12 +153,13 @@ class BadInputTable : public ::testing::Test {
       SCOPED_TRACE(r.what);
       const std::string before = Snapshot(*scenes_);
       const grpc::Status s = r.request();
-      EXPECT_EQ(CodeName(s.error_code()), CodeName(r.code)) << s.error_message();
+      EXPECT_EQ(wire::StatusCodeName(s.error_code()), wire::StatusCodeName(r.code))
+          << s.error_message();
       EXPECT_EQ(s.error_message(), r.message);
       EXPECT_TRUE(Snapshot(*scenes_) == before) << "the rejected request changed the server";
       if (print) {
-        std::cout << "| " << section << " | " << r.what << " | `" << CodeName(s.error_code())
-                  << ": " << s.error_message() << "` |\n";
+        std::cout << "| " << section << " | " << r.what << " | `"
+                  << wire::StatusCodeName(s.error_code()) << ": " << s.error_message() << "` |\n";
       }
     }
   }
