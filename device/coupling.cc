@@ -63,7 +63,7 @@ double ContactWeight(double max_depth, double margin) {
 }
 
 void StepProxy(const Coupling& c, const Pose& X_WH, const Vec3& v_WH, const Vec3& w_WH,
-               const Vec6& W_ir, const Mat6& K_ir, double h, ProxyState* proxy,
+               const Vec6& wrench_ir, const Mat6& K_ir, double h, ProxyState* proxy,
                double contact_weight) {
   const CouplingGains& g = c.gains;
   const ProxyParams& p = c.proxy;
@@ -77,7 +77,7 @@ void StepProxy(const Coupling& c, const Pose& X_WH, const Vec3& v_WH, const Vec3
   const double free = 1.0 - std::clamp(contact_weight, 0.0, 1.0);
   f.head<3>() = Wc.force - p.lin_damping * (proxy->v_W - free * v_WH);
   f.tail<3>() = Wc.torque - p.ang_damping * (proxy->w_W - free * w_WH);
-  f += W_ir;
+  f += wrench_ir;
   Mat6 A = h * h * K_ir;
   Vec6 Kv = K_ir * v;
   for (int i = 0; i < 3; ++i) {

@@ -90,12 +90,12 @@ Wrench CouplingWrench(const CouplingGains& g, const Pose& X_WH, const Vec3& v_WH
                       const ProxyState& proxy, bool* clamped);
 
 /// One linearised backward-Euler step of length h: the proxy under the
-/// coupling to the (held) handle, its damping, and the contact wrench W_ir
+/// coupling to the (held) handle, its damping, and the contact wrench wrench_ir
 /// with stiffness K_ir (both at the proxy's current pose). `contact_weight`
 /// in [0, 1] puts the proxy's own damping to the world (1, contact) or
 /// relative to the handle's velocity (0, free space). No allocation.
 void StepProxy(const Coupling& c, const Pose& X_WH, const Vec3& v_WH, const Vec3& w_WH,
-               const Vec6& W_ir, const Mat6& K_ir, double h, ProxyState* proxy,
+               const Vec6& wrench_ir, const Mat6& K_ir, double h, ProxyState* proxy,
                double contact_weight = 1.0);
 
 /// The contact weight for StepProxy from the deepest contact row at the

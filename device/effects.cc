@@ -61,7 +61,7 @@ constexpr std::size_t Idx(Effect e) { return static_cast<std::size_t>(e); }
 /// The contact normal (unit, towards the probe) and normal force N of the IR
 /// wrench; N = 0 outside contact.
 double NormalForce(const EffectParams& p, const EffectInput& in, Vec3* n) {
-  const Vec3 F = in.W_ir.head<3>();
+  const Vec3 F = in.wrench_ir.head<3>();
   const double N = F.norm();
   if (N <= p.contact_force_eps) return 0;
   *n = F / N;
@@ -71,14 +71,14 @@ double NormalForce(const EffectParams& p, const EffectInput& in, Vec3* n) {
 void ContactForceTorque(const EffectParams&, const EffectInput& in, EffectState* s, Vec6* W,
                         Mat6* K) {
   ++s->runs[Idx(Effect::kContact)];
-  *W += in.W_ir;
+  *W += in.wrench_ir;
   *K += in.K_ir;
 }
 
 /// 3-DoF contact: the force and its translational stiffness only.
 void ContactForce(const EffectParams&, const EffectInput& in, EffectState* s, Vec6* W, Mat6* K) {
   ++s->runs[Idx(Effect::kContact)];
-  W->head<3>() += in.W_ir.head<3>();
+  W->head<3>() += in.wrench_ir.head<3>();
   K->topLeftCorner<3, 3>() += in.K_ir.topLeftCorner<3, 3>();
 }
 

@@ -76,7 +76,7 @@ struct EffectParams {
 /// What a tick hands the effects.
 struct EffectInput {
   const IntermediateRep* ir = nullptr;  ///< the evaluator's current IR (rows, material)
-  Vec6 W_ir = Vec6::Zero();             ///< IR contact wrench at the proxy (blended, faded)
+  Vec6 wrench_ir = Vec6::Zero();        ///< IR contact wrench at the proxy (blended, faded)
   Mat6 K_ir = Mat6::Zero();
   Pose X_WP;
   Vec3 v_W = Vec3::Zero();

@@ -121,7 +121,7 @@ void ServoLoop::Tick(std::int64_t now_ns) {
   UpdateLinkFade(dt, h, v_WH, w_WH, &r);
   ClassifySource(&r);
   r.proxy = proxy_;
-  r.W_coupling = CouplingWrench(coupling_.gains, r.X_WH, v_WH, w_WH, proxy_, &r.clamped);
+  r.wrench_coupling = CouplingWrench(coupling_.gains, r.X_WH, v_WH, w_WH, proxy_, &r.clamped);
   if (r.clamped) ++stats_.clamped_ticks;
   UpdateStartup(h, &r);
   r.fail_safe = FailSafeOf(r);
@@ -186,7 +186,7 @@ void ServoLoop::TakeLinkRequestsAndIr(TickRecord* r) {
 void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, const Vec3& v_WH,
                                         const Vec3& w_WH, TickRecord* r) {
   Mat6 K_ir;
-  eval_.Evaluate(proxy_.X_WP, now_ns, h, &r->W_ir, &K_ir, &r->ir);
+  eval_.Evaluate(proxy_.X_WP, now_ns, h, &r->wrench_ir, &K_ir, &r->ir);
   if (r->ir.have_ir) {
     stats_.ir_age_ms.Add(r->ir.age_s * 1e3);
     if (r->ir.stale) ++stats_.stale_ticks;
@@ -194,13 +194,13 @@ void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, const Vec
   }
   // Effects hook (effects.h): only the stages the scene declared run.
   Mat6 K_fx;
-  effects_.Apply(EffectInput{&eval_.current(), r->W_ir, K_ir, proxy_.X_WP, proxy_.v_W, proxy_.w_W,
-                             1e-9 * static_cast<double>(now_ns)},
-                 &r->W_effects, &K_fx);
+  effects_.Apply(EffectInput{&eval_.current(), r->wrench_ir, K_ir, proxy_.X_WP, proxy_.v_W,
+                             proxy_.w_W, 1e-9 * static_cast<double>(now_ns)},
+                 &r->wrench_effects, &K_fx);
   r->contact_weight = config_.free_space_follows_handle
                           ? ContactWeight(r->ir.max_depth, config_.free_space_margin_m)
                           : 1.0;
-  StepProxy(coupling_, r->X_WH, v_WH, w_WH, r->W_effects, K_fx, h, &proxy_, r->contact_weight);
+  StepProxy(coupling_, r->X_WH, v_WH, w_WH, r->wrench_effects, K_fx, h, &proxy_, r->contact_weight);
   // An IR no valid answer produces (numbers that overflow on their way,
   // from a broken or foreign server) must not leave the proxy non-finite
   // for good: put it back on the handle and drop the IR.
@@ -256,8 +256,8 @@ void ServoLoop::UpdateStartup(double h, TickRecord* r) {
   const StartupParams& su = config_.startup;
   if (!engaged_) {
     const bool quiet =
-        r->W_coupling.force.norm() < su.quiet_force &&
-        (coupling_.gains.max_torque <= 0 || r->W_coupling.torque.norm() < su.quiet_torque);
+        r->wrench_coupling.force.norm() < su.quiet_force &&
+        (coupling_.gains.max_torque <= 0 || r->wrench_coupling.torque.norm() < su.quiet_torque);
     quiet_count_ = quiet ? quiet_count_ + 1 : 0;
     if (quiet_count_ >= su.quiet_ticks) engaged_ = true;
   } else {
@@ -269,8 +269,10 @@ void ServoLoop::UpdateStartup(double h, TickRecord* r) {
 void ServoLoop::CommandDevice(TickRecord* r) {
   const Mat3& R_WD = config_.X_WD.R;
   const double gain = startup_gain_ * link_gain_;
-  r->F_cmd_W.force = internal::ClampNorm(-gain * r->W_coupling.force, coupling_.gains.max_force);
-  r->F_cmd_W.torque = internal::ClampNorm(-gain * r->W_coupling.torque, coupling_.gains.max_torque);
+  r->F_cmd_W.force =
+      internal::ClampNorm(-gain * r->wrench_coupling.force, coupling_.gains.max_force);
+  r->F_cmd_W.torque =
+      internal::ClampNorm(-gain * r->wrench_coupling.torque, coupling_.gains.max_torque);
   r->F_cmd_D.force = R_WD.transpose() * r->F_cmd_W.force;
   r->F_cmd_D.torque = R_WD.transpose() * r->F_cmd_W.torque;
   if (device_->Command(r->F_cmd_D) != DeviceStatus::kOk) ++stats_.device_errors;

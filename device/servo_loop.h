@@ -121,12 +121,12 @@ struct TickRecord {
   DeviceStatus device_status = DeviceStatus::kNotOpen;
   DeviceState state;
   Pose X_WH;
-  ProxyState proxy;               ///< after the step
-  Vec6 W_ir = Vec6::Zero();       ///< contact wrench on the proxy (W, about P)
-  Vec6 W_effects = Vec6::Zero();  ///< the declared effects' wrench on the proxy
-  Wrench W_coupling;              ///< coupling wrench on the proxy after the step
-  Wrench F_cmd_W;                 ///< commanded on the handle, W
-  Wrench F_cmd_D;                 ///< commanded on the handle, D
+  ProxyState proxy;                    ///< after the step
+  Vec6 wrench_ir = Vec6::Zero();       ///< contact wrench on the proxy (W, about P)
+  Vec6 wrench_effects = Vec6::Zero();  ///< the declared effects' wrench on the proxy
+  Wrench wrench_coupling;              ///< coupling wrench on the proxy after the step
+  Wrench F_cmd_W;                      ///< commanded on the handle, W
+  Wrench F_cmd_D;                      ///< commanded on the handle, D
   IrEvalInfo ir;
   bool new_ir = false;
   double startup_gain = 0;

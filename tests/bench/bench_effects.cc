@@ -99,7 +99,7 @@ Result Measure(EffectSet set, int ticks) {
   ContactIr(Pose::Identity(), 1, 0, &ir);
   EffectInput in;
   in.ir = &ir;
-  in.W_ir << 0, 0, 3.2, 0.001, -0.002, 0;
+  in.wrench_ir << 0, 0, 3.2, 0.001, -0.002, 0;
   in.K_ir = 3200 * Mat6::Identity();
   std::vector<double> fx_ns;
   constexpr int kBatch = 64;

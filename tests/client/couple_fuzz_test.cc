@@ -813,7 +813,7 @@ class FuzzRun {
           Check(servo.Tick(), at);
           const device::TickRecord& r = servo.loop->last_tick();
           ++t_.servo_ticks;
-          if (r.W_ir.head<3>().norm() > 0) ++t_.contact_ticks;
+          if (r.wrench_ir.head<3>().norm() > 0) ++t_.contact_ticks;
           if (r.F_cmd_D.force.norm() > 0.99 * servo.dev->info().max_force) ++t_.limit_ticks;
         }
       }

@@ -226,7 +226,7 @@ TEST(LinkDelay, ThinPlateForceNeverFlipsInsideAt100MsWithTheLocalModel) {
     const bool after_late = late_window(r);
     const double fz = r.F_cmd_D.force.z();  // on the hand: +z pushes back up
     max_fz = std::max(max_fz, fz);
-    min_contact_fz = std::min(min_contact_fz, r.W_ir.head<3>().z());
+    min_contact_fz = std::min(min_contact_fz, r.wrench_ir.head<3>().z());
     if (r.X_WH.t.z() - kProbeRadius < kTop) {
       ++inside;
       if (r.ir.source == device::kIrSourceLocal && !r.ir.stale) ++local_inside;

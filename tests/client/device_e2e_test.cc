@@ -64,7 +64,7 @@ TEST(DeviceE2e, ThinPlateForceNeverFlipsInside) {
     const bool after_late = late_window(r);
     const double fz = r.F_cmd_D.force.z();  // on the hand: +z pushes back up
     max_fz = std::max(max_fz, fz);
-    min_contact_fz = std::min(min_contact_fz, r.W_ir.head<3>().z());  // on the proxy (W)
+    min_contact_fz = std::min(min_contact_fz, r.wrench_ir.head<3>().z());  // on the proxy (W)
     // The handle's sphere reaches into (or through) the plate.
     if (r.X_WH.t.z() - kProbeRadius < kTop) {
       ++inside;
@@ -175,9 +175,9 @@ TEST(DeviceE2e, StalledUpdateStreamFadesAndRecovers) {
   seen.reserve(1500);
   bool back = false;
   RunTicks(*rig.loop, 1500, [&](const TickRecord& r) {
-    seen.push_back({r.new_ir, r.F_cmd_D.force.norm(), r.W_ir.norm(), r.link_gain, r.time_ns});
+    seen.push_back({r.new_ir, r.F_cmd_D.force.norm(), r.wrench_ir.norm(), r.link_gain, r.time_ns});
     // Contact rendered again at most of its former strength.
-    back = seen.size() > 200 && r.W_ir(2) > 0.1 && r.F_cmd_D.force.z() > 0.75 * f_before;
+    back = seen.size() > 200 && r.wrench_ir(2) > 0.1 && r.F_cmd_D.force.z() > 0.75 * f_before;
     return !back;
   });
   // The stall as the loop saw it: it began at tick 0 (the last answer came

@@ -100,7 +100,7 @@ void ConnectLocal(Rig& rig, const device::ScriptParams& script, ServoConfig conf
 /// A local-model IR with active rows pushing the proxy up (+z).
 bool LocalPush(const TickRecord& r) {
   return r.ir.have_ir && !r.ir.stale && r.ir.source == kLocal && r.ir.active_rows > 0 &&
-         r.W_ir(2) > 0;
+         r.wrench_ir(2) > 0;
 }
 
 /// Ticks until `n` ticks have satisfied `pred` (at most `max_ticks`);
@@ -160,7 +160,7 @@ TEST(LocalModelE2e, RemovedAddedAndMovedBodiesWhileCoupled) {
       // No row, ever; the contact wrench is what the blend from the last IR
       // with rows has left (it decays by a tenth per new IR).
       if (r.ir.active_rows != 0) ++with_rows;
-      if (ticks_after >= 100) max_contact_late = std::max(max_contact_late, r.W_ir.norm());
+      if (ticks_after >= 100) max_contact_late = std::max(max_contact_late, r.wrench_ir.norm());
       // The proxy and the handle settle on the hand within a few hundred ms
       // once free.
       if (++ticks_after > 400) max_force_late = std::max(max_force_late, r.F_cmd_W.force.norm());
@@ -198,7 +198,7 @@ TEST(LocalModelE2e, RemovedAddedAndMovedBodiesWhileCoupled) {
     // Free for 300 ticks in a row (bounded), then never pushed again.
     int free_run = 0, pushed_after = 0, ticks_after = 0;
     RunTicks(loop, 5000, [&](const TickRecord& r) {
-      const bool free = r.ir.active_rows == 0 && r.W_ir.norm() < 1e-3;
+      const bool free = r.ir.active_rows == 0 && r.wrench_ir.norm() < 1e-3;
       if (free_run < 300) {
         free_run = free ? free_run + 1 : 0;
         return true;
@@ -291,11 +291,11 @@ TEST(LocalModelE2e, AMovingBodyIsFeltWhereItIs) {
     if (first_ns < 0 && rows && r.ir.source == kLocal) {
       first_ns = r.time_ns;
       first_depth = r.ir.max_depth;
-      force_at_first = r.W_ir(2);
+      force_at_first = r.wrench_ir(2);
     }
     if (first_ns >= 0) {
       max_depth = std::max(max_depth, r.ir.max_depth);
-      max_force = std::max(max_force, r.W_ir(2));
+      max_force = std::max(max_force, r.wrench_ir(2));
       return r.time_ns - first_ns < 100'000'000;  // 100 ms of contact
     }
     return true;

@@ -137,8 +137,8 @@ TEST(Session, PressingIntoABodyPushesOutMoreWithDepth) {
   samples.reserve(3000);
   testing::LateTickWindow after_late;
   RunTicks(loop, 2300, [&](const TickRecord& r) {
-    samples.push_back({kBoxTop - (r.X_WH.t.z() - kProbeRadius), r.F_cmd_W.force, r.W_ir.head<3>(),
-                       after_late(r)});
+    samples.push_back({kBoxTop - (r.X_WH.t.z() - kProbeRadius), r.F_cmd_W.force,
+                       r.wrench_ir.head<3>(), after_late(r)});
     return true;
   });
   session.Stop();
@@ -243,7 +243,7 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
   RunTicks(loop, 1000, [&](const TickRecord& r) {
     track_lateness(r);
     seen.push_back(
-        {r.new_ir, r.W_ir.norm(), r.F_cmd_D.force.norm(), r.link_gain, r.time_ns, late_stale});
+        {r.new_ir, r.wrench_ir.norm(), r.F_cmd_D.force.norm(), r.link_gain, r.time_ns, late_stale});
     return true;
   });
   stopper.join();
@@ -325,7 +325,7 @@ TEST(Session, ServerLossFadesTheForceAndTheSessionReconnects) {
     prev_force = f;
     // Rendering the new server's IR: contact rows pushing the proxy out.
     contact_again = reconnected && r.ir.have_ir && !r.ir.stale && r.ir.active_rows > 0 &&
-                    r.W_ir(2) > 0.1 && r.F_cmd_W.force.z() > 0.5 * f_before;
+                    r.wrench_ir(2) > 0.1 && r.F_cmd_W.force.z() > 0.5 * f_before;
     return !contact_again;
   });
   EXPECT_TRUE(reconnected) << session.stats().last_error;

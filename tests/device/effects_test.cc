@@ -142,7 +142,7 @@ TEST(EffectPipeline, ContactOnlySceneRunsNoOtherEffectCode) {
 TEST(EffectPipeline, EmptyPipelineGivesNoWrench) {
   EffectPipeline p(EffectSet{});
   EffectInput in;
-  in.W_ir << 1, 2, 3, 4, 5, 6;
+  in.wrench_ir << 1, 2, 3, 4, 5, 6;
   in.K_ir = Mat6::Identity();
   Vec6 W = Vec6::Constant(7);
   Mat6 K = Mat6::Constant(7);
@@ -168,7 +168,7 @@ TEST(Friction, StickUpToMuSThenSlipAtMuD) {
   const double N = 2.0;
   EffectInput in;
   in.ir = &ir;
-  in.W_ir.head<3>() = Vec3(0, 0, N);
+  in.wrench_ir.head<3>() = Vec3(0, 0, N);
   Vec6 W;
   Mat6 K;
   double peak = 0;
@@ -198,7 +198,7 @@ TEST(Friction, StickUpToMuSThenSlipAtMuD) {
   EXPECT_FALSE(p.state().slipping);
   EXPECT_NEAR(-W(0), 0.4 * N - 1000 * 2e-4, 1e-9);
   // Lift off: no normal force, no friction, anchor forgotten.
-  in.W_ir.setZero();
+  in.wrench_ir.setZero();
   p.Apply(in, &W, &K);
   EXPECT_TRUE(W.isZero());
   EXPECT_FALSE(p.state().anchored);

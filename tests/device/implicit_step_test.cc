@@ -44,9 +44,9 @@ IntermediateRep Floor(double k) {
 
 /// The explicit alternative: symplectic Euler on the same forces (coupling,
 /// proxy damping, contact), ignoring the contact stiffness in the step.
-void ExplicitStep(const Coupling& c, const Pose& X_WH, const Vec6& W_ir, ProxyState* p) {
+void ExplicitStep(const Coupling& c, const Pose& X_WH, const Vec6& wrench_ir, ProxyState* p) {
   const Wrench Wc = CouplingWrench(c.gains, X_WH, Vec3::Zero(), Vec3::Zero(), *p, nullptr);
-  const Vec3 f = Wc.force - c.proxy.lin_damping * p->v_W + W_ir.head<3>();
+  const Vec3 f = Wc.force - c.proxy.lin_damping * p->v_W + wrench_ir.head<3>();
   p->v_W += kH / c.proxy.mass * f;
   p->X_WP.t += kH * p->v_W;
 }

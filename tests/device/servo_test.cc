@@ -146,7 +146,7 @@ TEST(Servo, StalledIrStreamFadesAndRecovers) {
       [&](const TickRecord& r) {
         const double t = rig.time_s(), fz = r.F_cmd_W.force.z();
         if (std::abs(t - 1.85) < 5e-4) before = fz;
-        if (std::abs(t - 1.901) < 5e-4) at_50ms = fz, ir_at_50ms = r.W_ir.norm();
+        if (std::abs(t - 1.901) < 5e-4) at_50ms = fz, ir_at_50ms = r.wrench_ir.norm();
         if (std::abs(t - 1.951) < 5e-4) at_100ms = fz;
         if (std::abs(t - 2.19) < 5e-4) after = fz;
         if (t > 1.5) max_df = std::max(max_df, std::abs(fz - prev));
