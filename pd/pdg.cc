@@ -292,8 +292,6 @@ struct PdgContext {
   Vec3 c0;      // centre of mass at the query pose
 };
 
-const Pose kX_BB = Pose::Identity();
-
 double Sigma(const PdgContext& c, const Vec6& z) { return z.cwiseProduct(z).dot(c.metric); }
 
 Vec6 Z(const PdgContext& c, const Pose& X) { return RelativeConfiguration(c.A.mass(), c.X_BA, X); }

@@ -223,8 +223,6 @@ struct PdtContext {
   int ccd_queries = 0;
 };
 
-const Pose kX_BB = Pose::Identity();
-
 double Size(const PdtContext& c) { return std::min(c.A.mesh().size(), c.B.mesh().size()); }
 
 bool Colliding(PdtContext& c, const Vec3& x) {

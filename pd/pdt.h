@@ -78,6 +78,10 @@ class PdQueryData {
   double cold_search_bound = std::numeric_limits<double>::infinity();
 };
 
+/// B in its own frame: the PDt and PDg cores work in B's frame, B at the
+/// identity.
+inline const Pose kX_BB = Pose::Identity();
+
 /// Solves min |x|^2 subject to n_i . x >= b_i exactly (primal active set
 /// from the feasible point `x0`; at most three independent constraints are
 /// active in 3-D). Returns false if the iteration cap was reached (x then
