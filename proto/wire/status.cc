@@ -2,7 +2,9 @@
 
 namespace hapticpd::wire {
 
-const char* StatusCodeName(grpc::StatusCode code) {
+const char* StatusCodeName(int code) {
+  // On the int: a value outside the enum's range must not be loaded as a
+  // grpc::StatusCode (undefined behaviour).
   switch (code) {
     case grpc::StatusCode::OK:
       return "OK";

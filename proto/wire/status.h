@@ -7,7 +7,9 @@
 namespace hapticpd::wire {
 
 /// The code's name as gRPC spells it, e.g. "INVALID_ARGUMENT"; "UNKNOWN"
-/// for a value that is not a gRPC status code.
-const char* StatusCodeName(grpc::StatusCode code);
+/// for a value that is not a gRPC status code. Takes the code as an int
+/// (grpc::StatusCode converts implicitly), so that a number from a foreign
+/// peer is never held in the enum outside its range.
+const char* StatusCodeName(int code);
 
 }  // namespace hapticpd::wire

@@ -153,7 +153,7 @@ class BadInputTable : public ::testing::Test {
       SCOPED_TRACE(r.what);
       const std::string before = Snapshot(*scenes_);
       const grpc::Status s = r.request();
-      EXPECT_EQ(wire::StatusCodeName(s.error_code()), wire::StatusCodeName(r.code))
+      EXPECT_STREQ(wire::StatusCodeName(s.error_code()), wire::StatusCodeName(r.code))
           << s.error_message();
       EXPECT_EQ(s.error_message(), r.message);
       EXPECT_TRUE(Snapshot(*scenes_) == before) << "the rejected request changed the server";
