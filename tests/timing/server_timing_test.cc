@@ -23,10 +23,15 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-TEST(ServerTiming, SilentDeviceSessionEndsAtTheIdleTimeoutAndFreesItsSlot) {
+server::ServerOptions WithIdleTimeout(double seconds) {
   server::ServerOptions opt;
+  opt.limits.idle_timeout_s = seconds;
+  return opt;
+}
+
+TEST(ServerTiming, SilentDeviceSessionEndsAtTheIdleTimeoutAndFreesItsSlot) {
+  server::ServerOptions opt = WithIdleTimeout(0.3);
   opt.limits.max_sessions = 1;
-  opt.limits.idle_timeout_s = 0.3;
   ServerHarness h(Transport::kTcp, opt);
   auto scenes = h.Scenes();
   auto haptics = h.Haptics();
@@ -61,9 +66,7 @@ TEST(ServerTiming, SilentDeviceSessionEndsAtTheIdleTimeoutAndFreesItsSlot) {
 }
 
 TEST(ServerTiming, SessionThatNeverSendsAHelloEndsAtTheIdleTimeout) {
-  server::ServerOptions opt;
-  opt.limits.idle_timeout_s = 0.3;
-  ServerHarness h(Transport::kTcp, opt);
+  ServerHarness h(Transport::kTcp, WithIdleTimeout(0.3));
   auto haptics = h.Haptics();
   Session mute(*haptics);
   ASSERT_TRUE(WaitUntil([&] { return h.server().counts().active_calls == 1; }));
@@ -73,9 +76,7 @@ TEST(ServerTiming, SessionThatNeverSendsAHelloEndsAtTheIdleTimeout) {
 }
 
 TEST(ServerTiming, SessionThatKeepsSendingIsNotEndedByTheIdleTimeout) {
-  server::ServerOptions opt;
-  opt.limits.idle_timeout_s = 0.3;
-  ServerHarness h(Transport::kTcp, opt);
+  ServerHarness h(Transport::kTcp, WithIdleTimeout(0.3));
   auto haptics = h.Haptics();
   Session s(*haptics);
   ASSERT_TRUE(s.Open(Session::DefaultHello()).ok());
@@ -97,9 +98,7 @@ TEST(ServerTiming, TheServersOwnWaitBeforeAnAnswerIsNotTheClientsIdleTime) {
   // timeout. The idle time counts from the server's answer, not from the
   // pose it answered; counted from the pose, the worker finds the deadline
   // passed as soon as it has sent the answer, before the client can reply.
-  server::ServerOptions opt;
-  opt.limits.idle_timeout_s = 0.3;
-  ServerHarness h(Transport::kTcp, opt);
+  ServerHarness h(Transport::kTcp, WithIdleTimeout(0.3));
   auto haptics = h.Haptics();
   Session s(*haptics);
   v1::Hello hello = Session::DefaultHello();
