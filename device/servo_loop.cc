@@ -13,6 +13,12 @@
 
 namespace hapticpd::device {
 
+namespace {
+// Run fires catch-up ticks while it is at most this many periods behind, and
+// resyncs beyond; the proxy's step is bounded by the same span.
+constexpr int kCatchUpPeriods = 5;
+}  // namespace
+
 std::int64_t SteadyClock::NowNs() const {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(
              std::chrono::steady_clock::now().time_since_epoch())
@@ -117,7 +123,7 @@ void ServoLoop::Tick(std::int64_t now_ns) {
     proxy_init_ = true;
   }
   TakeLinkRequestsAndIr(&r);
-  StepProxyAgainstContact(now_ns, h, v_WH, w_WH, &r);
+  StepProxyAgainstContact(now_ns, h, dt, v_WH, w_WH, &r);
   UpdateLinkFade(dt, h, v_WH, w_WH, &r);
   ClassifySource(&r);
   r.proxy = proxy_;
@@ -183,7 +189,7 @@ void ServoLoop::TakeLinkRequestsAndIr(TickRecord* r) {
   }
 }
 
-void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, const Vec3& v_WH,
+void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, double dt, const Vec3& v_WH,
                                         const Vec3& w_WH, TickRecord* r) {
   Mat6 K_ir;
   eval_.Evaluate(proxy_.X_WP, now_ns, h, &r->wrench_ir, &K_ir, &r->ir);
@@ -200,7 +206,19 @@ void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, const Vec
   r->contact_weight = config_.free_space_follows_handle
                           ? ContactWeight(r->ir.max_depth, config_.free_space_margin_m)
                           : 1.0;
-  StepProxy(coupling_, r->X_WH, v_WH, w_WH, r->wrench_effects, K_fx, h, &proxy_, r->contact_weight);
+  // Away from contact the proxy steps over the time that really passed since
+  // the last tick, because the handle moves in real time: with a fixed step,
+  // a late tick (the handle moved two periods' worth) and the catch-up ticks
+  // after it (the handle barely moved) stretch the coupling, and the hand
+  // feels a tap in free space. In contact the step stays the period: the
+  // contact's damping (effects.cc) is stable for steps of one period, and
+  // the proxy rests against the surface there instead of chasing the handle.
+  // The two blend by the contact weight; the real step is at most the
+  // periods Run catches up before it resyncs.
+  const double real_step = std::clamp(dt, 0.0, kCatchUpPeriods * h);
+  const double step = h + (1.0 - r->contact_weight) * (real_step - h);
+  StepProxy(coupling_, r->X_WH, v_WH, w_WH, r->wrench_effects, K_fx, step, &proxy_,
+            r->contact_weight);
   // An IR no valid answer produces (numbers that overflow on their way,
   // from a broken or foreign server) must not leave the proxy non-finite
   // for good: put it back on the handle and drop the IR.
@@ -381,7 +399,7 @@ void ServoLoop::Run(std::stop_token st) {
     // Fell behind by more than a few periods (debugger, suspend): resync
     // rather than firing a burst of catch-up ticks.
     const std::int64_t now = mono.NowNs();
-    if (now > deadline + 5 * period) deadline = now + period;
+    if (now > deadline + kCatchUpPeriods * period) deadline = now + period;
   }
   device_->Command(Wrench{});
 }

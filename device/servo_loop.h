@@ -213,8 +213,8 @@ class ServoLoop {
   double MeasurePeriod(std::int64_t now_ns);
   bool ReadDevice(TickRecord* r);  ///< false: unreadable, zero output sent
   void TakeLinkRequestsAndIr(TickRecord* r);
-  void StepProxyAgainstContact(std::int64_t now_ns, double h, const Vec3& v_WH, const Vec3& w_WH,
-                               TickRecord* r);
+  void StepProxyAgainstContact(std::int64_t now_ns, double h, double dt, const Vec3& v_WH,
+                               const Vec3& w_WH, TickRecord* r);
   void UpdateLinkFade(double dt, double h, const Vec3& v_WH, const Vec3& w_WH, TickRecord* r);
   void ClassifySource(TickRecord* r);
   void UpdateStartup(double h, TickRecord* r);

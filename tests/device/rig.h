@@ -20,6 +20,9 @@ struct Rig {
   std::unique_ptr<LocalPdIrSource> source;
   std::unique_ptr<ServoLoop> loop;
   std::int64_t tick = 0;
+  /// The time of tick n (ns) given the previous tick's; unset: n ms, the
+  /// loop's period exactly. Tests of late ticks set it.
+  std::function<std::int64_t(std::int64_t n, std::int64_t previous_ns)> tick_time_ns;
 
   Rig(const ScriptParams& script, pd::ModelPtr probe, std::vector<pd::SceneBody> scene,
       ServoConfig config = {}, const LocalPdOptions& options = {}) {
@@ -35,7 +38,7 @@ struct Rig {
   /// One servo tick then one pump of the PD source.
   void Step(bool stalled = false) {
     ++tick;
-    clock.Set(tick * 1'000'000);
+    clock.Set(tick_time_ns ? tick_time_ns(tick, clock.NowNs()) : tick * 1'000'000);
     loop->Tick(clock.NowNs());
     source->Pump(loop.get(), clock.NowNs(), stalled);
   }
