@@ -146,6 +146,7 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
   info->stale = expired_ || info->age_s > params_.max_age_s;
   info->outside_validity = !InsideValidity(ir_, X_WP);
   if (!info->outside_validity) unvisited_ = false;
+  info->unvisited = unvisited_;
   const double target = (info->stale || info->outside_validity) ? 0.0 : 1.0;
   if (target == 0) ramp_recovery_ = info->stale;
   const double down = params_.fade_time_s > 0 ? dt_s / params_.fade_time_s : 1.0;

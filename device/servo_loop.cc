@@ -15,7 +15,8 @@ namespace hapticpd::device {
 
 namespace {
 // Run fires catch-up ticks while it is at most this many periods behind, and
-// resyncs beyond; the proxy's step is bounded by the same span.
+// resyncs beyond; the proxy's catch-up with the handle is bounded by the
+// same span.
 constexpr int kCatchUpPeriods = 5;
 }  // namespace
 
@@ -206,19 +207,27 @@ void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, double dt
   r->contact_weight = config_.free_space_follows_handle
                           ? ContactWeight(r->ir.max_depth, config_.free_space_margin_m)
                           : 1.0;
-  // Away from contact the proxy steps over the time that really passed since
-  // the last tick, because the handle moves in real time: with a fixed step,
-  // a late tick (the handle moved two periods' worth) and the catch-up ticks
-  // after it (the handle barely moved) stretch the coupling, and the hand
-  // feels a tap in free space. In contact the step stays the period: the
-  // contact's damping (effects.cc) is stable for steps of one period, and
-  // the proxy rests against the surface there instead of chasing the handle.
-  // The two blend by the contact weight; the real step is at most the
-  // periods Run catches up before it resyncs.
-  const double real_step = std::clamp(dt, 0.0, kCatchUpPeriods * h);
-  const double step = h + (1.0 - r->contact_weight) * (real_step - h);
-  StepProxy(coupling_, r->X_WH, v_WH, w_WH, r->wrench_effects, K_fx, step, &proxy_,
-            r->contact_weight);
+  // The handle moves in real time and the step is one period: a late tick
+  // finds the handle more than a period's motion on, and the catch-up ticks
+  // after it find it barely moved, so the proxy would lag, then overshoot,
+  // and the hand feel a tap in free space. Away from contact the proxy is
+  // carried by the handle's motion over the difference (at most the periods
+  // Run catches up before it resyncs), weighted like the free-space damping;
+  // in contact it is not moved (and a still hand moves nothing anywhere).
+  // Only where the IR says the space is free: a fresh IR whose validity
+  // region holds the proxy. Without one (none yet, stale, or answering a
+  // pose the proxy has left, as under long delays) nothing is known of what
+  // is near, and the proxy keeps its own dynamics.
+  // Before the step, so the step sees the stretch a period's motion left.
+  const bool known_free =
+      r->ir.have_ir && !r->ir.stale && !r->ir.outside_validity && !r->ir.unvisited;
+  const double lag_s =
+      known_free ? (1.0 - r->contact_weight) * (std::clamp(dt, 0.0, kCatchUpPeriods * h) - h) : 0.0;
+  if (lag_s != 0) {
+    proxy_.X_WP.t += lag_s * v_WH;
+    proxy_.X_WP.R = internal::Orthonormalize(internal::ExpRotation(lag_s * w_WH) * proxy_.X_WP.R);
+  }
+  StepProxy(coupling_, r->X_WH, v_WH, w_WH, r->wrench_effects, K_fx, h, &proxy_, r->contact_weight);
   // An IR no valid answer produces (numbers that overflow on their way,
   // from a broken or foreign server) must not leave the proxy non-finite
   // for good: put it back on the handle and drop the IR.
