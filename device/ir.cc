@@ -147,7 +147,12 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
   info->outside_validity = !InsideValidity(ir_, X_WP);
   if (!info->outside_validity) unvisited_ = false;
   info->unvisited = unvisited_;
-  const double target = (info->stale || info->outside_validity) ? 0.0 : 1.0;
+  // Staleness is not faded here: the servo loop fades its whole output on
+  // link loss (ServoConfig::link_fade_time_s), so one event has one fade.
+  // A fade-down while the IR is stale (the proxy, held on the handle, left
+  // the validity region during a loss) recovers with the plain ramp, so the
+  // fresh IR pushes a hand that sank in meanwhile back out.
+  const double target = info->outside_validity ? 0.0 : 1.0;
   if (target == 0) ramp_recovery_ = info->stale;
   const double down = params_.fade_time_s > 0 ? dt_s / params_.fade_time_s : 1.0;
   const double up = params_.fade_in_time_s > 0 ? dt_s / params_.fade_in_time_s : 1.0;
@@ -171,12 +176,12 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
     // energy nobody put in. Under delay the proxy leaves the validity region
     // whenever it moves faster than radius / round trip (at 20 ms one way,
     // over ~25 mm/s for a 1 mm radius), so this repeats several times a
-    // second and pumps (issue 8). Instead, as g rises, move the rows'
+    // second and pumps. Instead, as g rises, move the rows'
     // surface into the body by `shift` so that g U_shift(x) does not grow,
     // and let it come back to the true surface only where no row pushes
     // (the anchor of a spring moved while it is slack: no work; passive
-    // set-position modulation, Lee & Huang 2010). A stale IR (link loss)
-    // still recovers with the ramp of Mark et al. 1996, once per loss.
+    // set-position modulation, Lee & Huang 2010). The first IR after a reset
+    // or a link loss rises with the plain ramp of Mark et al. 1996.
     const double shift_old = shift_;
     if (pot.max_depth < shift_) shift_ = std::max(0.0, pot.max_depth);  // slack: free
     if (fade_ > fade_old && !ramp_recovery_ && pot.energy_j > 0) {

@@ -1,7 +1,8 @@
 // The intermediate representation (IR) the servo loop renders from
 // (../shared/docs/HAPTICS.md "Intermediate representation"), and its local
 // evaluation: unilateral contact rows, blending of a new IR over a few ticks,
-// fade to zero when the IR is stale or the proxy leaves its validity region.
+// fade to zero when the proxy leaves its validity region. A stale IR (link
+// loss) is reported here and faded by the servo loop (ServoConfig).
 //
 // Frames: P is the proxy frame (origin at the probe's centre of mass; the
 // probe's mesh frame A sits at X_PA in it). Every vector is in the world W.
@@ -93,17 +94,22 @@ struct IrEvalParams {
   int blend_ticks = 10;
   /// An IR older than this (s, from its receive time) is stale.
   double max_age_s = 0.020;
-  /// Time (s) for the contact wrench to fade from full to zero.
+  /// Time (s) for the contact wrench to fade from full to zero once the
+  /// proxy leaves the IR's validity region. A stale IR does not fade here:
+  /// the servo loop fades its whole output on link loss
+  /// (ServoConfig::link_fade_time_s), one fade for one event.
   double fade_time_s = 0.020;
-  /// Time (s) to ramp it back from zero to full (recovery; slower, since the
-  /// proxy may have sunk into the body meanwhile: Mark et al. 1996).
+  /// Time (s) to ramp it back from zero to full (the first IR after a reset,
+  /// or back inside the validity region; slower, since the proxy may have
+  /// sunk into the body meanwhile: Mark et al. 1996).
   double fade_in_time_s = 0.100;
   /// Coming back into the validity region, raise the gain without adding
   /// energy: the rows' surface is moved into the body (IrEvalInfo::shift) so
   /// that gain x potential never grows at a fixed pose, and it returns to the
   /// true surface only where that costs nothing (rows not pushing). Fading a
-  /// stiffness up at depth is what pumps under delay (issue 8). Recovery
-  /// from a stale IR (link loss) keeps the plain ramp (Mark et al. 1996).
+  /// stiffness up at depth is what pumps under delay. The first IR after a
+  /// reset, and a rise after a fade-down during a link loss, keep the plain
+  /// ramp (Mark et al. 1996).
   bool energy_neutral_reentry = true;
 };
 
@@ -132,8 +138,8 @@ struct IrEvalInfo {
 /// on arrival, the jump between the wrench the old IR gave and the one the
 /// new IR gives at the current proxy pose is kept as an offset that decays
 /// to zero over `blend_ticks`, so the output is continuous even when IRs
-/// arrive faster than the blend. Fading: a gain that moves towards 0 (stale
-/// or outside validity) at 1/fade_time per second, or towards 1 at
+/// arrive faster than the blend. Fading: a gain that moves towards 0 (outside
+/// validity; a stale IR is the servo loop's to fade) at 1/fade_time per second, or towards 1 at
 /// 1/fade_in_time; back inside the validity region the rise is made
 /// energy-neutral (IrEvalParams::energy_neutral_reentry). An IR that arrives
 /// for a pose whose validity region the proxy is already outside of (a late
@@ -174,8 +180,8 @@ class IrEvaluator {
   // has not been inside it since: its rows do not push.
   bool unvisited_ = false;
   bool expired_ = false;  // see Expire()
-  // The last fade-down was for a stale IR (or there was no IR yet): the
-  // next rise is the plain recovery ramp.
+  // The last fade-down was while the IR was stale (or there was no IR yet):
+  // the next rise is the plain recovery ramp.
   bool ramp_recovery_ = true;
 };
 

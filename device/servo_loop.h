@@ -84,10 +84,12 @@ struct ServoConfig {
   IrEvalParams ir;
   StartupParams startup;
   /// Link loss: once the IR is stale (no answer for ir.max_age_s, e.g. the
-  /// server went away), the commanded wrench fades to exactly zero over this
-  /// time (s) and the proxy is then held on the handle, so no coupling
-  /// stretch survives the loss; when fresh IRs come again it ramps back over
-  /// link_fade_in_time_s. Both are measured on the loop's clock.
+  /// server went away, or RequestLinkLost), the commanded wrench fades to
+  /// exactly zero over this time (s) and the proxy is then held on the
+  /// handle, so no coupling stretch survives the loss; when fresh IRs come
+  /// again it ramps back over link_fade_in_time_s. Both are measured on the
+  /// loop's clock. This is the only fade on link loss: the IR's own fade
+  /// (IrEvalParams::fade_time_s) is for leaving its validity region.
   double link_fade_time_s = 0.020;
   double link_fade_in_time_s = 0.100;
   /// m: within this distance of a contact row's surface (and inside it) the
