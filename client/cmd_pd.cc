@@ -29,7 +29,6 @@ namespace hapticpd::cli {
 namespace {
 
 constexpr char kShapePrefix[] = "shape:";
-constexpr double kUnitQuaternionTolerance = 1e-6;
 
 struct PdOptions {
   std::string probe;
@@ -98,9 +97,9 @@ std::uint64_t ParseBudget(const std::string& option, const std::string& text) {
 }
 
 /// "tx ty tz qw qx qy qz" (ParseNumbers: spaces, commas or both): a world
-/// pose, translation in metres and a unit quaternion. A quaternion off unit
-/// length by more than 1e-6 is an error rather than silently normalised: it
-/// usually means the numbers are in the wrong order.
+/// pose, translation in metres and a unit quaternion (IsUnitQuaternion: a
+/// norm within 1e-3 of 1 is normalised; any other is an error, which
+/// usually means the numbers are in the wrong order).
 Pose ParsePose(const std::string& option, const std::string& text) {
   static constexpr const char* kNames[7] = {"tx", "ty", "tz", "qw", "qx", "qy", "qz"};
   const std::vector<double> v = ParseNumbers(text, option);
@@ -115,9 +114,9 @@ Pose ParsePose(const std::string& option, const std::string& text) {
     }
   }
   const Quat q(v[3], v[4], v[5], v[6]);
-  const double norm = q.norm();
-  if (!(std::abs(norm - 1) <= kUnitQuaternionTolerance)) {
-    throw CommandError(option + ": quaternion (w x y z) has norm " + Fmt(norm) + ", expected 1");
+  if (!IsUnitQuaternion(q)) {
+    throw CommandError(option + ": quaternion (w x y z) has norm " + Fmt(q.norm()) +
+                       ", expected 1 (within 1e-3)");
   }
   return Pose::FromQuaternion(q, Vec3(v[0], v[1], v[2]));
 }
@@ -379,7 +378,7 @@ void RegisterPd(CLI::App& app) {
       ->allow_extra_args(false);
   cmd->add_option("--pose", opts->pose,
                   "World pose of the probe's mesh (file) frame: \"tx ty tz qw qx qy qz\", metres "
-                  "and a unit quaternion (norm within 1e-6 of 1; not normalised for you)")
+                  "and a unit quaternion (norm within 1e-3 of 1, then normalised)")
       ->type_name("\"tx ty tz qw qx qy qz\"");
   cmd->add_option("--scene-pose", opts->scene_poses,
                   "World pose of a scene body, one per --scene in order (repeatable); bodies "

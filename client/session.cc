@@ -35,8 +35,7 @@ bool ToPose(const v1::Pose& p, Pose* out) {
   }
   const auto& q = p.orientation();
   const device::Quat quat(q.w(), q.x(), q.y(), q.z());
-  const double n = quat.norm();
-  if (!std::isfinite(n) || n < 0.5) return false;
+  if (!IsUnitQuaternion(quat)) return false;
   *out = Pose::FromQuaternion(quat, t);
   return true;
 }

@@ -41,7 +41,7 @@ bool ParseNumbers(const std::string& text, double* out, int count) {
 
 Pose PoseOrThrow(const double* v, const char* what) {
   const Quat q(v[3], v[4], v[5], v[6]);
-  if (std::abs(q.norm() - 1) > 1e-3)
+  if (!IsUnitQuaternion(q))
     throw std::invalid_argument(std::string(what) + ": quaternion is not unit");
   return Pose::FromQuaternion(q.normalized(), Vec3(v[0], v[1], v[2]));
 }
@@ -158,7 +158,7 @@ Recording LoadRecording(const std::filesystem::path& path) {
     if (!out.samples.empty() && s.t_s < out.samples.back().t_s)
       Fail(path, lineno, "time decreases");
     const Quat q(v[4], v[5], v[6], v[7]);
-    if (std::abs(q.norm() - 1) > 1e-3) Fail(path, lineno, "quaternion is not unit");
+    if (!IsUnitQuaternion(q)) Fail(path, lineno, "quaternion is not unit (norm within 1e-3 of 1)");
     s.state.X_DH = Pose::FromQuaternion(q, Vec3(v[1], v[2], v[3]));
     s.state.v_DH_D = Vec3(v[8], v[9], v[10]);
     s.state.w_DH_D = Vec3(v[11], v[12], v[13]);

@@ -11,6 +11,7 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <cmath>
 #include <cstdint>
 
 namespace hapticpd {
@@ -22,6 +23,19 @@ using Vec6 = Eigen::Matrix<double, 6, 1>;
 using Mat3 = Eigen::Matrix3d;
 using Mat6 = Eigen::Matrix<double, 6, 6>;
 using Quat = Eigen::Quaterniond;
+
+/// The one unit-quaternion rule, wherever a rotation comes in as a
+/// quaternion (RPCs, scene files, the CLI, replay files, the server's
+/// answers on the device side): a norm within this of 1 is taken and
+/// normalised; any other, and any non-finite one, is refused with an error
+/// naming the field. Wide enough for a float's round trip and six printed
+/// digits, narrow enough to catch components in the wrong order.
+inline constexpr double kUnitQuaternionTolerance = 1e-3;
+
+/// True when `q` passes the rule above (false for NaN and infinities).
+inline bool IsUnitQuaternion(const Quat& q) {
+  return std::abs(q.norm() - 1.0) <= kUnitQuaternionTolerance;
+}
 
 /// A rigid transform X_AB: maps coordinates in frame B to frame A,
 /// p_A = R * p_B + t. `R` is orthonormal with det +1.

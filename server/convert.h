@@ -8,7 +8,6 @@ namespace hapticpd::server {
 
 using wire::FromProto;
 using wire::InvalidArgument;
-using wire::kQuaternionNormTolerance;
 using wire::MeshFromBytes;
 using wire::MeshFromInline;
 using wire::MeshFromShape;

@@ -108,9 +108,8 @@ grpc::Status FromProto(const v1::Pose& p, std::string_view field, Pose* out) {
       if (auto s = CheckFinite(x, Join(f, name)); !s.ok()) return s;
     }
     q = Quat(o.w(), o.x(), o.y(), o.z());
-    const double n = q.norm();
-    if (!(std::abs(n - 1.0) <= kQuaternionNormTolerance)) {
-      return InvalidArgument(f, "quaternion norm " + std::to_string(n) +
+    if (!IsUnitQuaternion(q)) {
+      return InvalidArgument(f, "quaternion norm " + std::to_string(q.norm()) +
                                     " is not 1 (a unit quaternion w, x, y, z is required)");
     }
     q.normalize();

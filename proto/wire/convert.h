@@ -25,18 +25,15 @@
 
 namespace hapticpd::wire {
 
-/// Quaternions whose norm is within this of 1 are normalised; others are
-/// rejected (DESIGN.md: "unit quaternions").
-inline constexpr double kQuaternionNormTolerance = 1e-3;
-
 grpc::Status InvalidArgument(std::string_view field, std::string_view what);
 
 /// Reads a vector whose every component is in `range` (kCoordinate: a
 /// position; messages name FIELD.x, .y, .z).
 grpc::Status FromProto(const v1::Vec3& v, std::string_view field, Vec3* out,
                        const Range& range = kCoordinate);
-/// Reads a pose: translation in kCoordinate, unit quaternion (normalised
-/// when within kQuaternionNormTolerance). Absent parts mean origin /
+/// Reads a pose: translation in kCoordinate, unit quaternion (the rule of
+/// IsUnitQuaternion, pd/types.h: normalised when its norm is within 1e-3
+/// of 1, refused otherwise). Absent parts mean origin /
 /// identity.
 grpc::Status FromProto(const v1::Pose& p, std::string_view field, Pose* out);
 /// Reads a material: each field in its range (kStiffness,

@@ -321,8 +321,8 @@ TEST(CliTest, PdBadInput) {
   ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 1 0 0 0 0'", "got 8");
   ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 1 0 0 1'",
                      "quaternion (w x y z) has norm 1.41421356, expected 1");
-  ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 1.00001 0 0 0'",
-                     "has norm 1.00001, expected 1");
+  ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 1.002 0 0 0'",
+                     "has norm 1.002, expected 1 (within 1e-3)");
   ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 nan 0 1 0 0 0'",
                      "ty is nan, expected a finite number");
   ExpectOneLineError(std::string(kBoxes) + " --pose '1.5 0 0 inf 0 0 0'", "qw is inf");

@@ -263,7 +263,7 @@ void ToWire(const Pose& X, Rand& rnd, v1::Pose* out) {
   out->mutable_position()->set_y(Clamp(X.t.y(), wire::kCoordinate));
   out->mutable_position()->set_z(Clamp(X.t.z(), wire::kCoordinate));
   Quat q = X.Rotation();
-  if (rnd.P(0.1)) q.coeffs() *= 1 + rnd.U(-0.9, 0.9) * wire::kQuaternionNormTolerance;
+  if (rnd.P(0.1)) q.coeffs() *= 1 + rnd.U(-0.9, 0.9) * kUnitQuaternionTolerance;
   out->mutable_orientation()->set_w(q.w());
   out->mutable_orientation()->set_x(q.x());
   out->mutable_orientation()->set_y(q.y());

@@ -98,6 +98,23 @@ TEST(IrFromContactUpdate, MapsRowsTargetAndFrames) {
   EXPECT_FALSE(IrFromContactUpdate(u, X_AP, 999, &ir));
 }
 
+TEST(IrFromContactUpdate, TakesAQuaternionByTheOneUnitRule) {
+  // pd/types.h IsUnitQuaternion: a norm within 1e-3 of 1 is normalised, any
+  // other refused, as on the server.
+  for (const auto& [w, taken] :
+       {std::pair{1.0005, true}, std::pair{0.9995, true}, std::pair{1.002, false},
+        std::pair{0.6, false}, std::pair{std::nan(""), false}}) {
+    v1::ContactUpdate u;
+    *u.mutable_pose_ref() = MakePose(1, 2, 3);
+    u.mutable_pose_ref()->mutable_orientation()->set_w(w);
+    IntermediateRep ir;
+    EXPECT_EQ(IrFromContactUpdate(u, Pose::Identity(), 0, &ir), taken) << w;
+    if (taken) {
+      EXPECT_NEAR(ir.X_WP_ref.R.determinant(), 1.0, 1e-12) << w;
+    }
+  }
+}
+
 TEST(Session, ConnectFailsWithTheServersReason) {
   auto server = StartServer("127.0.0.1:0");
   SessionOptions o = Options(server->port());
