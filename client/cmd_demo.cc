@@ -3,7 +3,7 @@
 // and a cup), an observer, and a simulated hand pressing a stick probe into
 // the cup's floor through the network Session and the 1 kHz servo loop, first in
 // PDt then in PDg. Prints a short report and writes trace.csv and force.svg.
-// `--scene FILE.json` runs a scene file instead (server/scene_file.h): its
+// `--scene FILE.json` runs a scene file instead (proto/wire/scene_file.h): its
 // bodies, probe, PD mode (PDt then PDg when it names none) and effects.
 #include <signal.h>
 #include <spdlog/spdlog.h>
@@ -33,8 +33,7 @@
 #include "pd/mesh.h"
 #include "proto/wire/convert.h"
 #include "proto/wire/routing.h"
-#include "server/convert.h"
-#include "server/scene_file.h"
+#include "proto/wire/scene_file.h"
 #include "server/server.h"
 
 namespace hapticpd::cli {
@@ -277,19 +276,19 @@ void RunDemo(const DemoOptions& o) {
   base.local_model = o.local_model == "on";
   // No delay, jitter or loss: no emulator at all (the session's direct path).
   if (o.link.delay_ms > 0 || o.link.jitter_ms > 0 || o.link.loss > 0) base.link = o.link;
-  std::optional<server::SceneFile> file;
+  std::optional<wire::SceneFile> file;
   if (!o.scene_file.empty()) {
     try {
-      file = server::ParseSceneFile(o.scene_file);
+      file = wire::ParseSceneFile(o.scene_file);
       base.script.script = device::ParseHandScript(o.script);
-    } catch (const server::SceneFileError& e) {
+    } catch (const wire::SceneFileError& e) {
       throw CommandError(std::string("demo: --scene: ") + e.what());
     } catch (const std::invalid_argument& e) {
       throw CommandError(std::string("demo: --script: ") + e.what());
     }
     if (!file->probe.mesh_path.empty()) {
       try {
-        server::ToProto(pd::LoadMesh(file->probe.mesh_path), &base.probe_mesh.emplace());
+        wire::ToProto(pd::LoadMesh(file->probe.mesh_path), &base.probe_mesh.emplace());
       } catch (const pd::MeshError& e) {
         throw CommandError("demo: --scene: " + o.scene_file + ": probe.mesh: " + e.what());
       }
@@ -355,7 +354,7 @@ void RunDemo(const DemoOptions& o) {
     base.effects = client::EffectsFromSceneConfig(scene.config());
     base.effect_params = client::EffectParamsFromSceneConfig(scene.config());
     if (scene.config().pd_mode() != v1::PD_MODE_UNSPECIFIED) {
-      modes = {server::PdModeName(scene.config().pd_mode())};
+      modes = {wire::PdModeName(scene.config().pd_mode())};
     }
     std::snprintf(scene_line, sizeof(scene_line),
                   "scene '%s' from %s: %d bodies, probe: %s, effects: %s, script: %s",

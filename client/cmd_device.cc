@@ -21,7 +21,6 @@
 #include "hapticpd/v1/scene.grpc.pb.h"
 #include "pd/mesh.h"
 #include "proto/wire/convert.h"
-#include "server/convert.h"
 
 namespace hapticpd::cli {
 namespace {
@@ -101,7 +100,7 @@ void RunDevice(const DeviceOptions& o) {
   } else if (o.probe.rfind("shape:", 0) == 0) {
     h.set_probe_shape(o.probe.substr(6));
   } else {
-    server::ToProto(pd::LoadMesh(o.probe), h.mutable_probe_mesh());
+    wire::ToProto(pd::LoadMesh(o.probe), h.mutable_probe_mesh());
   }
   if (o.simulated.empty() == o.replay.empty()) {
     throw CommandError("device: give exactly one of --simulated SCRIPT and --replay FILE");

@@ -16,7 +16,7 @@
 
 #include "client/rpc_util.h"
 #include "hapticpd/v1/scene.grpc.pb.h"
-#include "server/scene_file.h"
+#include "proto/wire/scene_file.h"
 
 namespace hapticpd::cli {
 namespace {
@@ -227,10 +227,10 @@ bool ReadExportedObj(const std::string& path, v1::InlineMesh* out) {
 /// stays. Prints the scene id, then one body id a line.
 void RunSceneLoad(const SceneOptions& o, const std::string& file, bool exact_meshes) {
   const std::string cmd = exact_meshes ? "scene import" : "scene load";
-  server::SceneFile f;
+  wire::SceneFile f;
   try {
-    f = server::ParseSceneFile(file);
-  } catch (const server::SceneFileError& e) {
+    f = wire::ParseSceneFile(file);
+  } catch (const wire::SceneFileError& e) {
     throw CommandError(cmd + ": " + e.what());
   }
   const std::string id = o.load_id.empty() ? f.scene_id : o.load_id;
@@ -240,7 +240,7 @@ void RunSceneLoad(const SceneOptions& o, const std::string& file, bool exact_mes
   };
   std::vector<Upload> uploads;
   for (std::size_t i = 0; i < f.bodies.size(); ++i) {
-    const server::SceneFileBody& b = f.bodies[i];
+    const wire::SceneFileBody& b = f.bodies[i];
     Upload& u = uploads.emplace_back();
     u.header.set_scene_id(id);
     u.header.set_request_id(NewRequestId());
@@ -330,10 +330,10 @@ void RunSceneExport(const SceneOptions& o) {
   j["scene"] = sc.scene_id();
   j["description"] = sc.description();
   // Every config field written out, so that the import gets the same config.
-  if (c.pd_mode() != v1::PD_MODE_UNSPECIFIED) j["mode"] = server::PdModeName(c.pd_mode());
+  if (c.pd_mode() != v1::PD_MODE_UNSPECIFIED) j["mode"] = wire::PdModeName(c.pd_mode());
   if (c.declared()) {
     j["effects"] = nlohmann::json::array();
-    for (int e : c.effects()) j["effects"].push_back(server::EffectName(v1::Effect(e)));
+    for (int e : c.effects()) j["effects"].push_back(wire::EffectName(v1::Effect(e)));
   }
   j["gravity"] = Vec(c.gravity());
   j["texture"] = {{"amplitude", c.texture_amplitude()}, {"frequency", c.texture_frequency()}};

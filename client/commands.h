@@ -19,7 +19,7 @@ void RegisterSceneOps(CLI::App& app);  // inject, move, remove, scene
 void RegisterWatchCouple(CLI::App& app);
 void RegisterDevice(CLI::App& app);  // device: the 1 kHz device side of a session
 void RegisterDemo(CLI::App& app);    // demo: server + scene + simulated device in one process
-void RegisterBench(CLI::App& app);   // bench table1|accuracy|peers
+void RegisterBench(CLI::App& app);   // bench table1|delay (peers|accuracy|cold: hapticpd-bench)
 /// observe: a scene's Watch stream, one summary line a second (or JSON).
 void RegisterObserve(CLI::App& app);
 

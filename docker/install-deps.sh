@@ -12,7 +12,7 @@ PACKAGES=(
   libeigen3-dev libopenmesh-dev libspdlog-dev libfmt-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev
   libsqlite3-dev libssl-dev  # the server's state directory (server/store.h)
-  libfcl-dev libccd-dev libbullet-dev
+  libfcl-dev libccd-dev libbullet-dev  # the test oracles and hapticpd-bench (peers, accuracy, cold); not hapticpd
   clang libclang-rt-14-dev  # the `fuzz` preset: clang and its libFuzzer/ASan runtimes
   libboost-dev libjs-three  # `hapticpd view`: Boost.Beast (HTTP + WebSocket) and three.js for its page
   chromium-headless-shell   # tests/browser (label `browser`) and tests/bench/bench_view.mjs

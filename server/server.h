@@ -1,5 +1,8 @@
 // The hapticpd gRPC server: SceneService and HapticService on the callback
-// API, gRPC health checking and server reflection.
+// API, gRPC health checking and server reflection. The library's one public
+// header: a program that runs a server (`hapticpd serve`, `demo`, `bench
+// delay`) needs this and nothing else of server/; what the client shares
+// with the server (conversions, the scene-file format) is in proto/wire/.
 //
 //   HapticServer server(options);
 //   server.Start();                 // throws std::runtime_error (bind, TLS, files)
@@ -158,9 +161,8 @@ class HapticServer {
   };
   Counts counts() const;
 
-  struct Impl;
-
  private:
+  struct Impl;
   std::unique_ptr<Impl> impl_;
 };
 

@@ -1,6 +1,6 @@
-// Runs the built `hapticpd` executable as a user would (through the shell)
-// and captures its exit code, stdout and stderr. The including test target
-// defines HAPTICPD_CLI_PATH (the executable's path).
+// Runs the built `hapticpd` executable (or another, RunExecutable) as a user
+// would (through the shell) and captures its exit code, stdout and stderr.
+// The including test target defines HAPTICPD_CLI_PATH (hapticpd's path).
 #pragma once
 
 #include <gtest/gtest.h>
@@ -22,14 +22,14 @@ struct RunResult {
   std::string err;
 };
 
-/// Runs `hapticpd ARGS` (ARGS is shell text, quote as in a terminal).
-inline RunResult RunCli(const std::string& args) {
+/// Runs the executable at `path` with ARGS (shell text, quote as in a
+/// terminal).
+inline RunResult RunExecutable(const std::string& path, const std::string& args) {
   static std::atomic<int> counter{0};
   const std::filesystem::path err_path =
       std::filesystem::temp_directory_path() / ("hapticpd_cli_test_" + std::to_string(::getpid()) +
                                                 "_" + std::to_string(counter++) + ".err");
-  const std::string cmd =
-      std::string("'") + HAPTICPD_CLI_PATH + "' " + args + " 2>'" + err_path.string() + "'";
+  const std::string cmd = std::string("'") + path + "' " + args + " 2>'" + err_path.string() + "'";
   RunResult r;
   FILE* pipe = ::popen(cmd.c_str(), "r");
   if (pipe == nullptr) {
@@ -48,5 +48,8 @@ inline RunResult RunCli(const std::string& args) {
   std::filesystem::remove(err_path);
   return r;
 }
+
+/// Runs `hapticpd ARGS`.
+inline RunResult RunCli(const std::string& args) { return RunExecutable(HAPTICPD_CLI_PATH, args); }
 
 }  // namespace hapticpd::testing

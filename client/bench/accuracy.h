@@ -1,4 +1,4 @@
-// `hapticpd bench accuracy`: what accuracy costs in time. For PDt and PDg on
+// `hapticpd-bench accuracy`: what accuracy costs in time. For PDt and PDg on
 // each benchmark (client/bench/scenarios.h), one point per setting of what
 // trades one for the other — iteration cap, contact tolerance epsilon,
 // motion coherence on/off, cold-start directions, mesh resolution — with the

@@ -205,7 +205,7 @@ std::vector<ColdPose> MakeColdPoses(const std::vector<ColdPair>& pairs, const Co
 nlohmann::json ColdPosesToJson(const std::vector<ColdPose>& poses, const ColdOptions& o) {
   nlohmann::json j;
   j["description"] =
-      "Cold-query reference poses (hapticpd bench cold --write-reference): probe pose "
+      "Cold-query reference poses (hapticpd-bench cold --write-reference): probe pose "
       "[tx,ty,tz,qw,qx,qy,qz] against the scene at the identity; pdt_reference is Bullet's "
       "GJK/EPA on convex pairs (pdt_exact) and otherwise a directional-sampling upper bound "
       "(FCL); pdg_reference a sampled rigid-motion upper bound (sqrt sigma)";

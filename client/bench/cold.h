@@ -1,4 +1,4 @@
-// `hapticpd bench cold`: how good and how fast cold PD queries are (no
+// `hapticpd-bench cold`: how good and how fast cold PD queries are (no
 // motion coherence: the first frame after an injection, a teleport, every
 // one-shot `hapticpd pd`). Random deep poses with uniformly random
 // rotations on probe/scene pairs from the shared models (open and closed,

@@ -1,4 +1,4 @@
-// Reference answers for the accuracy benchmark (`hapticpd bench accuracy`)
+// Reference answers for the accuracy benchmark (`hapticpd-bench accuracy`)
 // and the PD tests: upper bounds on PDt and PDg found by sampling free
 // configurations with FCL's boolean collide (an implementation independent
 // of pd/). Every returned bound is a configuration that FCL reports free

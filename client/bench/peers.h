@@ -1,4 +1,4 @@
-// `hapticpd bench peers`: on the same poses (every frame of each benchmark's
+// `hapticpd-bench peers`: on the same poses (every frame of each benchmark's
 // trajectory), our PDt against what a user would otherwise reach for:
 //   * FCL mesh-mesh collide with all contacts (per-triangle-pair contacts,
 //     the usual substitute for a penetration depth),

@@ -1,7 +1,8 @@
 // The benchmark scenarios of the seed paper, shared by `hapticpd bench`
-// (client/cmd_bench.cc) and the benchmark programs under tests/bench: the
-// three benchmark pairs and their scripted 1 kHz trajectories, plus small
-// timing and statistics helpers.
+// (client/cmd_bench.cc), `hapticpd-bench` (client/bench/bench_main.cc) and
+// the benchmark programs under tests/bench: the three benchmark pairs and
+// their scripted 1 kHz trajectories, plus small timing and statistics
+// helpers.
 //
 //   stick  vs the Stanford bunny (69K triangles)
 //   spoon  vs cup                 (procedural stand-ins, pd/shapes.h)

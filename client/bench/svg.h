@@ -3,7 +3,7 @@
 // right of the plot, off the data; point labels are placed where they
 // overlap no other label or point, and those that fit nowhere are listed
 // under the legend instead. Used by
-// `hapticpd demo` (force traces) and `hapticpd bench accuracy` (Pareto plots).
+// `hapticpd demo` (force traces) and `hapticpd-bench accuracy` (Pareto plots).
 #pragma once
 
 #include <filesystem>

@@ -1,6 +1,7 @@
 // Command line, main loop, summaries and printing shared by the PD benchmark
 // programs (bench_pdt, bench_pdg). The benchmark pairs, their trajectories and the statistics
-// helpers live in client/bench/scenarios.h, shared with `hapticpd bench`.
+// helpers live in client/bench/scenarios.h, shared with `hapticpd bench`
+// and `hapticpd-bench`.
 #pragma once
 
 #include <algorithm>

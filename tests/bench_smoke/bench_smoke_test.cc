@@ -1,5 +1,6 @@
-// The code paths of `hapticpd bench` (client/bench/) on tiny inputs: small
-// procedural meshes and a few frames, so that they cannot rot. Asserts
+// The code paths of `hapticpd bench` and `hapticpd-bench` (client/bench/) on
+// tiny inputs: small procedural meshes and a few frames, so that they cannot
+// rot. Asserts
 // structure and sanity (fields present, errors >= 0, reference bounds not
 // below exact answers), never wall-clock time. `bench delay` runs in real
 // time by nature; its tests look at the output's structure only.
@@ -34,19 +35,31 @@
 namespace hapticpd::bench {
 namespace {
 
-/// Runs hapticpd, with HAPTICPD_MODELS_DIR set to `models` unless empty.
-testing::RunResult RunCli(const std::string& args, const std::string& models = "") {
-  if (models.empty()) return testing::RunCli(args);
+/// Runs the executable at `path`, with HAPTICPD_MODELS_DIR set to `models`
+/// unless empty.
+testing::RunResult RunWithModels(const std::string& path, const std::string& args,
+                                 const std::string& models) {
+  if (models.empty()) return testing::RunExecutable(path, args);
   const char* old = std::getenv("HAPTICPD_MODELS_DIR");
   const std::string saved = old != nullptr ? old : "";
   ::setenv("HAPTICPD_MODELS_DIR", models.c_str(), 1);
-  testing::RunResult r = testing::RunCli(args);
+  testing::RunResult r = testing::RunExecutable(path, args);
   if (old != nullptr) {
     ::setenv("HAPTICPD_MODELS_DIR", saved.c_str(), 1);
   } else {
     ::unsetenv("HAPTICPD_MODELS_DIR");
   }
   return r;
+}
+
+/// Runs hapticpd (bench table1, bench delay).
+testing::RunResult RunCli(const std::string& args, const std::string& models = "") {
+  return RunWithModels(HAPTICPD_CLI_PATH, args, models);
+}
+
+/// Runs hapticpd-bench (peers, accuracy, cold: the benchmarks with the oracles).
+testing::RunResult RunBenchCli(const std::string& args, const std::string& models = "") {
+  return RunWithModels(HAPTICPD_BENCH_CLI_PATH, args, models);
 }
 
 std::vector<Benchmark> TinyBenchmarks(int frames) {
@@ -406,7 +419,7 @@ TEST(BenchCli, AccuracyWritesTheSvgsAndPeersPrintsJson) {
   const auto dir = std::filesystem::temp_directory_path() / "hapticpd_bench_cli_svg";
   std::filesystem::remove_all(dir);
   const auto a =
-      RunCli("bench accuracy --tiny --frames 16 --poses 1 --json --svg '" + dir.string() + "'");
+      RunBenchCli("accuracy --tiny --frames 16 --poses 1 --json --svg '" + dir.string() + "'");
   ASSERT_EQ(a.exit_code, 0) << a.err;
   const nlohmann::json j = nlohmann::json::parse(a.out);
   EXPECT_GT(j["points"].size(), 20u);
@@ -414,7 +427,7 @@ TEST(BenchCli, AccuracyWritesTheSvgsAndPeersPrintsJson) {
   EXPECT_TRUE(std::filesystem::exists(dir / "accuracy_pdt.svg"));
   EXPECT_TRUE(std::filesystem::exists(dir / "accuracy_pdg.svg"));
   std::filesystem::remove_all(dir);
-  const auto p = RunCli("bench peers --tiny --frames 8 --json");
+  const auto p = RunBenchCli("peers --tiny --frames 8 --json");
   ASSERT_EQ(p.exit_code, 0) << p.err;
   EXPECT_EQ(nlohmann::json::parse(p.out).size(), 18u);
 }
@@ -427,6 +440,31 @@ TEST(BenchCli, BadArgumentsGetOneLineAndANonZeroExit) {
     EXPECT_NE(r.exit_code, 0) << args;
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << args << ": " << r.err;
     EXPECT_EQ(r.err.rfind("hapticpd: ", 0), 0u) << args << ": " << r.err;
+  }
+}
+
+// hapticpd links no oracle: `bench accuracy|peers|cold` say in one line
+// which executable runs them.
+TEST(BenchCli, TheOracleBenchmarksNameHapticpdBench) {
+  for (const char* sub : {"accuracy", "peers", "cold"}) {
+    const auto r = RunCli(std::string("bench ") + sub + " --tiny --frames 8 --json");
+    EXPECT_NE(r.exit_code, 0) << sub;
+    EXPECT_TRUE(r.out.empty()) << sub << ": " << r.out;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << sub << ": " << r.err;
+    EXPECT_EQ(r.err.rfind("hapticpd: bench " + std::string(sub), 0), 0u) << r.err;
+    EXPECT_NE(r.err.find("run hapticpd-bench " + std::string(sub)), std::string::npos) << r.err;
+  }
+}
+
+TEST(BenchOracleCli, BadArgumentsGetOneLineAndANonZeroExit) {
+  for (const char* args :
+       {"", "table1", "accuracy --poses 0", "peers --bogus", "peers --frames 0",
+        "accuracy --tiny --frames 8 --svg /proc/hapticpd-no/such", "cold --poses 0",
+        "cold --models /nonexistent-hapticpd-models", "cold --out /proc/hapticpd-no/such"}) {
+    const auto r = RunBenchCli(args);
+    EXPECT_NE(r.exit_code, 0) << args;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << args << ": " << r.err;
+    EXPECT_EQ(r.err.rfind("hapticpd-bench: ", 0), 0u) << args << ": " << r.err;
   }
 }
 

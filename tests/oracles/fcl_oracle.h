@@ -37,7 +37,7 @@ int FclContacts(const FclModel& a, const Pose& X_WA, const FclModel& b, const Po
                 int max_contacts = 100000);
 
 /// FCL's convex shape (fcl::Convex) of a mesh's convex hull, for its
-/// GJK/EPA penetration query (the peer `hapticpd bench peers` compares with).
+/// GJK/EPA penetration query (the peer `hapticpd-bench peers` compares with).
 class FclConvex {
  public:
   explicit FclConvex(const pd::Mesh& mesh);  ///< convex hull of the vertices

@@ -1,8 +1,8 @@
 // Accuracy of cold PD queries (no motion coherence) on a stored pose set:
 // tests/data/cold/procedural.json holds seeded deep poses on the procedural
-// pairs of `hapticpd bench cold` with reference bounds computed by FCL
+// pairs of `hapticpd-bench cold` with reference bounds computed by FCL
 // sampling (Bullet GJK/EPA on the convex pairs), written by
-//   hapticpd bench cold --procedural --poses 6 --seed 22
+//   hapticpd-bench cold --procedural --poses 6 --seed 22
 //       --write-reference tests/data/cold/procedural.json
 // Each answer is verified with FCL here, and the ratio distribution must
 // meet the thresholds the cold start meets today (tests/bench/README.md,

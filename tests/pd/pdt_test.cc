@@ -203,7 +203,7 @@ TEST(PdtNonConvex, SharedBunnyAnswersAreVerifiedContacts) {
 }
 
 // Upper bound on PDt by directional sampling (client/bench/ground_truth.h,
-// shared with `hapticpd bench accuracy`).
+// shared with `hapticpd-bench accuracy`).
 using bench::SampledUpperBound;
 
 TEST(PdtNonConvex, MedianWithinOnePercentOfSamplingBoundAlongACoherentTrajectory) {
