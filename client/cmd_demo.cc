@@ -158,24 +158,6 @@ Run RunMode(const RunSpec& spec, double duration) {
   return r;
 }
 
-/// The bounding box (world) of a scene's bodies; zero for an empty scene.
-std::pair<Vec3, Vec3> SceneBox(const v1::Scene& scene) {
-  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity());
-  Vec3 hi = -lo;
-  for (const v1::Body& b : scene.bodies()) {
-    const Pose X = wire::FromProtoUnchecked(b.pose());
-    const Vec3 a = wire::FromProtoUnchecked(b.mesh_info().aabb_min()),
-               c = wire::FromProtoUnchecked(b.mesh_info().aabb_max());
-    for (int i = 0; i < 8; ++i) {
-      const Vec3 p((i & 1) ? c.x() : a.x(), (i & 2) ? c.y() : a.y(), (i & 4) ? c.z() : a.z());
-      lo = lo.cwiseMin(X * p);
-      hi = hi.cwiseMax(X * p);
-    }
-  }
-  if (!lo.allFinite()) lo = hi = Vec3::Zero();
-  return {lo, hi};
-}
-
 void WriteCsv(const std::filesystem::path& path, const std::vector<Run>& runs) {
   std::ofstream f(path);
   if (!f) throw CommandError("demo: cannot write " + path.string());
@@ -254,14 +236,15 @@ void WriteSvg(const std::filesystem::path& path, const std::vector<Run>& runs) {
   }
 }
 
-void RunDemo(const DemoOptions& o) {
+/// Every option checked, and the scene file read, before the server starts:
+/// the run's common spec (link, local model, the file's probe and script).
+RunSpec CheckedDemoSpec(const DemoOptions& o, std::optional<wire::SceneFile>* file) {
   if (!(o.duration >= 0.5) || !std::isfinite(o.duration) || o.duration > 600) {
     throw CommandError("demo: --duration: expected 0.5 to 600 seconds per mode");
   }
-  const std::filesystem::path out(o.out);
   std::error_code ec;
-  std::filesystem::create_directories(out, ec);
-  if (ec) throw CommandError("demo: --out: cannot create " + out.string() + ": " + ec.message());
+  std::filesystem::create_directories(o.out, ec);
+  if (ec) throw CommandError("demo: --out: cannot create " + o.out + ": " + ec.message());
 
   if (!(o.travel >= 0) || o.travel > 0.2) {
     throw CommandError("demo: --travel: expected 0 to 0.2 m");
@@ -276,26 +259,109 @@ void RunDemo(const DemoOptions& o) {
   base.local_model = o.local_model == "on";
   // No delay, jitter or loss: no emulator at all (the session's direct path).
   if (o.link.delay_ms > 0 || o.link.jitter_ms > 0 || o.link.loss > 0) base.link = o.link;
-  std::optional<wire::SceneFile> file;
   if (!o.scene_file.empty()) {
     try {
-      file = wire::ParseSceneFile(o.scene_file);
+      *file = wire::ParseSceneFile(o.scene_file);
       base.script.script = device::ParseHandScript(o.script);
     } catch (const wire::SceneFileError& e) {
       throw CommandError(std::string("demo: --scene: ") + e.what());
     } catch (const std::invalid_argument& e) {
       throw CommandError(std::string("demo: --script: ") + e.what());
     }
-    if (!file->probe.mesh_path.empty()) {
+    if (!(*file)->probe.mesh_path.empty()) {
       try {
-        wire::ToProto(pd::LoadMesh(file->probe.mesh_path), &base.probe_mesh.emplace());
+        wire::ToProto(pd::LoadMesh((*file)->probe.mesh_path), &base.probe_mesh.emplace());
       } catch (const pd::MeshError& e) {
         throw CommandError("demo: --scene: " + o.scene_file + ": probe.mesh: " + e.what());
       }
-    } else if (!file->probe.shape.empty()) {
-      base.probe_shape = file->probe.shape;
+    } else if (!(*file)->probe.shape.empty()) {
+      base.probe_shape = (*file)->probe.shape;
     }
   }
+
+  return base;
+}
+
+/// The demo's scene: the default knot and cup added here, or the scene file
+/// the server loaded. Sets where the hand starts and how far it travels, the
+/// scene's effects and modes; returns the scene's line for the header.
+std::string SetUpScene(v1::SceneService::Stub& scenes, const DemoOptions& o,
+                       const std::optional<wire::SceneFile>& file, RunSpec* base,
+                       std::vector<std::string>* modes) {
+  char scene_line[512];
+  if (!file) {
+    const v1::Body knot = AddShape(scenes, "torusknot", "knot", Vec3::Zero());
+    const Vec3 kmin = wire::FromProtoUnchecked(knot.mesh_info().aabb_min());
+    const Vec3 cup_at(kmin.x() - 0.09, 0, kmin.z());  // clear of the knot
+    const v1::Body cup = AddShape(scenes, "cup", "cup", cup_at);
+    const Vec3 cup_max = cup_at + wire::FromProtoUnchecked(cup.mesh_info().aabb_max());
+    // Above the cup's axis, the stick's tip 5 mm above the rim; the hand
+    // pushes the tip down to 5 mm below the cup's base, i.e. into its floor.
+    base->above = Vec3(cup_at.x(), cup_at.y(), cup_max.z());
+    base->script.script = device::HandScript::kPress;
+    base->script.travel = (cup_max.z() - cup_at.z()) + 0.01;
+    std::snprintf(scene_line, sizeof(scene_line),
+                  "scene 'default': torus knot (%u triangles) and cup (%u triangles), probe: stick",
+                  knot.mesh_info().triangles(), cup.mesh_info().triangles());
+  } else {
+    base->scene_id = file->scene_id;
+    grpc::ClientContext ctx;
+    wire::AddSceneHeader(&ctx, base->scene_id);
+    v1::GetSceneRequest req;
+    req.set_scene_id(base->scene_id);
+    v1::Scene scene;
+    if (const grpc::Status s = scenes.GetScene(&ctx, req, &scene); !s.ok()) {
+      throw CommandError("demo: GetScene: " + s.error_message());
+    }
+    // Centred above the scene's bounding box; the hand goes down by --travel.
+    const auto [lo, hi] = SceneBox(scene);
+    base->above = Vec3(0.5 * (lo.x() + hi.x()), 0.5 * (lo.y() + hi.y()), hi.z());
+    base->script.travel = o.travel + 0.005;  // from 5 mm above the top
+    base->effects = client::EffectsFromSceneConfig(scene.config());
+    base->effect_params = client::EffectParamsFromSceneConfig(scene.config());
+    if (scene.config().pd_mode() != v1::PD_MODE_UNSPECIFIED) {
+      *modes = {wire::PdModeName(scene.config().pd_mode())};
+    }
+    std::snprintf(scene_line, sizeof(scene_line),
+                  "scene '%s' from %s: %d bodies, probe: %s, effects: %s, script: %s",
+                  base->scene_id.c_str(), o.scene_file.c_str(), scene.bodies_size(),
+                  base->probe_mesh ? file->probe.mesh_path.c_str() : base->probe_shape.c_str(),
+                  base->effects.ToString().c_str(), device::ToString(base->script.script));
+  }
+
+  return scene_line;
+}
+
+/// The runs' table, energy and the observer's view.
+void PrintSummary(const std::vector<Run>& runs, std::uint64_t frames, double observed_depth) {
+  std::printf("\n%-5s %10s %9s %9s %6s %9s %9s %9s %9s %9s %9s %9s\n", "mode", "loop Hz", "p99 us",
+              "jitter", "late", "updates", "contact", "rtt p50", "rtt p99", "PD p50", "peak F",
+              "peak dF");
+  for (const Run& r : runs) {
+    const double mean = r.stats.period_us.mean();
+    std::printf("%-5s %10.1f %9.0f %9.1f %6llu %9llu %9llu %9.0f %9.0f %9.0f %9.2f %9.3f\n",
+                ModeLabel(r.mode), mean > 0 ? 1e6 / mean : 0.0, r.stats.period_us.Quantile(0.99),
+                r.stats.period_us.stddev(), static_cast<unsigned long long>(r.stats.late_ticks),
+                static_cast<unsigned long long>(r.net.updates),
+                static_cast<unsigned long long>(r.net.contact_updates), r.net.rtt_p50_us,
+                r.net.rtt_p99_us, r.net.server_compute_p50_us, r.stats.max_force,
+                r.stats.max_dforce);
+  }
+  std::printf(
+      "(period p99 and jitter = std of the period in us; rtt = pose sent -> its "
+      "ContactUpdate, us; PD = server PD time, us; peak F in N, peak dF in N per tick)\n");
+  std::printf("energy into the hand:");
+  for (const Run& r : runs)
+    std::printf(" %s %.4f J", ModeLabel(r.mode), r.stats.energy_into_hand_j);
+  std::printf("; observer: %llu frames, deepest probe %.2f mm%s\n",
+              static_cast<unsigned long long>(frames), 1e3 * observed_depth,
+              runs[0].realtime ? "; servo thread SCHED_FIFO" : "");
+  std::printf("servo effects: %s\n", runs[0].effects.c_str());
+}
+
+void RunDemo(const DemoOptions& o) {
+  std::optional<wire::SceneFile> file;
+  RunSpec base = CheckedDemoSpec(o, &file);
 
   // With --view, SIGINT and SIGTERM end the demo after the run: blocked in
   // every thread started from here on, taken by sigwait below.
@@ -322,47 +388,7 @@ void RunDemo(const DemoOptions& o) {
       grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials());
   auto scenes = v1::SceneService::NewStub(channel);
   std::vector<std::string> modes = {"pdt", "pdg"};
-  char scene_line[512];
-  if (!file) {
-    const v1::Body knot = AddShape(*scenes, "torusknot", "knot", Vec3::Zero());
-    const Vec3 kmin = wire::FromProtoUnchecked(knot.mesh_info().aabb_min());
-    const Vec3 cup_at(kmin.x() - 0.09, 0, kmin.z());  // clear of the knot
-    const v1::Body cup = AddShape(*scenes, "cup", "cup", cup_at);
-    const Vec3 cup_max = cup_at + wire::FromProtoUnchecked(cup.mesh_info().aabb_max());
-    // Above the cup's axis, the stick's tip 5 mm above the rim; the hand
-    // pushes the tip down to 5 mm below the cup's base, i.e. into its floor.
-    base.above = Vec3(cup_at.x(), cup_at.y(), cup_max.z());
-    base.script.script = device::HandScript::kPress;
-    base.script.travel = (cup_max.z() - cup_at.z()) + 0.01;
-    std::snprintf(scene_line, sizeof(scene_line),
-                  "scene 'default': torus knot (%u triangles) and cup (%u triangles), probe: stick",
-                  knot.mesh_info().triangles(), cup.mesh_info().triangles());
-  } else {
-    base.scene_id = file->scene_id;
-    grpc::ClientContext ctx;
-    wire::AddSceneHeader(&ctx, base.scene_id);
-    v1::GetSceneRequest req;
-    req.set_scene_id(base.scene_id);
-    v1::Scene scene;
-    if (const grpc::Status s = scenes->GetScene(&ctx, req, &scene); !s.ok()) {
-      throw CommandError("demo: GetScene: " + s.error_message());
-    }
-    // Centred above the scene's bounding box; the hand goes down by --travel.
-    const auto [lo, hi] = SceneBox(scene);
-    base.above = Vec3(0.5 * (lo.x() + hi.x()), 0.5 * (lo.y() + hi.y()), hi.z());
-    base.script.travel = o.travel + 0.005;  // from 5 mm above the top
-    base.effects = client::EffectsFromSceneConfig(scene.config());
-    base.effect_params = client::EffectParamsFromSceneConfig(scene.config());
-    if (scene.config().pd_mode() != v1::PD_MODE_UNSPECIFIED) {
-      modes = {wire::PdModeName(scene.config().pd_mode())};
-    }
-    std::snprintf(scene_line, sizeof(scene_line),
-                  "scene '%s' from %s: %d bodies, probe: %s, effects: %s, script: %s",
-                  base.scene_id.c_str(), o.scene_file.c_str(), scene.bodies_size(),
-                  base.probe_mesh ? file->probe.mesh_path.c_str() : base.probe_shape.c_str(),
-                  base.effects.ToString().c_str(), device::ToString(base.script.script));
-  }
-
+  const std::string scene_line = SetUpScene(*scenes, o, file, &base, &modes);
   // An observer, as a viewer would attach one.
   grpc::ClientContext watch_ctx;
   std::atomic<std::uint64_t> frames{0};
@@ -385,7 +411,7 @@ void RunDemo(const DemoOptions& o) {
     reader->Finish();
   });
 
-  std::printf("hapticpd demo: server on 127.0.0.1:%d, %s\n", port, scene_line);
+  std::printf("hapticpd demo: server on 127.0.0.1:%d, %s\n", port, scene_line.c_str());
   std::unique_ptr<viewer::Viewer> view;
   if (o.view) {
     ConnectionOptions conn;
@@ -418,29 +444,8 @@ void RunDemo(const DemoOptions& o) {
     spdlog::set_level(level);
   }
 
-  std::printf("\n%-5s %10s %9s %9s %6s %9s %9s %9s %9s %9s %9s %9s\n", "mode", "loop Hz", "p99 us",
-              "jitter", "late", "updates", "contact", "rtt p50", "rtt p99", "PD p50", "peak F",
-              "peak dF");
-  for (const Run& r : runs) {
-    const double mean = r.stats.period_us.mean();
-    std::printf("%-5s %10.1f %9.0f %9.1f %6llu %9llu %9llu %9.0f %9.0f %9.0f %9.2f %9.3f\n",
-                ModeLabel(r.mode), mean > 0 ? 1e6 / mean : 0.0, r.stats.period_us.Quantile(0.99),
-                r.stats.period_us.stddev(), static_cast<unsigned long long>(r.stats.late_ticks),
-                static_cast<unsigned long long>(r.net.updates),
-                static_cast<unsigned long long>(r.net.contact_updates), r.net.rtt_p50_us,
-                r.net.rtt_p99_us, r.net.server_compute_p50_us, r.stats.max_force,
-                r.stats.max_dforce);
-  }
-  std::printf(
-      "(period p99 and jitter = std of the period in us; rtt = pose sent -> its "
-      "ContactUpdate, us; PD = server PD time, us; peak F in N, peak dF in N per tick)\n");
-  std::printf("energy into the hand:");
-  for (const Run& r : runs)
-    std::printf(" %s %.4f J", ModeLabel(r.mode), r.stats.energy_into_hand_j);
-  std::printf("; observer: %llu frames, deepest probe %.2f mm%s\n",
-              static_cast<unsigned long long>(frames.load()), 1e3 * observed_depth.load(),
-              runs[0].realtime ? "; servo thread SCHED_FIFO" : "");
-  std::printf("servo effects: %s\n", runs[0].effects.c_str());
+  PrintSummary(runs, frames.load(), observed_depth.load());
+  const std::filesystem::path out(o.out);
   WriteCsv(out / "trace.csv", runs);
   WriteSvg(out / "force.svg", runs);
   std::printf("wrote %s and %s\n", (out / "trace.csv").c_str(), (out / "force.svg").c_str());

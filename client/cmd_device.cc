@@ -56,27 +56,16 @@ Pose DefaultStart(const DeviceOptions& o, const v1::Welcome& welcome) {
   req.set_scene_id(o.scene);
   v1::Scene scene;
   Check(stub->GetScene(ctx.get(), req, &scene), "device");
-  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity());
-  Vec3 hi = -lo;
-  for (const v1::Body& b : scene.bodies()) {
-    if (b.body_id() == o.probe_body) continue;
-    const Pose X = wire::FromProtoUnchecked(b.pose());
-    const Vec3 a = wire::FromProtoUnchecked(b.mesh_info().aabb_min()),
-               c = wire::FromProtoUnchecked(b.mesh_info().aabb_max());
-    for (int i = 0; i < 8; ++i) {
-      const Vec3 p((i & 1) ? c.x() : a.x(), (i & 2) ? c.y() : a.y(), (i & 4) ? c.z() : a.z());
-      lo = lo.cwiseMin(X * p);
-      hi = hi.cwiseMax(X * p);
-    }
-  }
-  if (!lo.allFinite()) lo = hi = Vec3::Zero();  // empty scene: at the origin
+  const auto [lo, hi] = SceneBox(scene, o.probe_body);  // empty scene: at the origin
   const double below_com =
       welcome.probe_body_frame().position().z() - welcome.probe_mesh_info().aabb_min().z();
   return device::StartPoseAbove(lo, hi, std::max(0.0, below_com) + 0.005);
 }
 
-void RunDevice(const DeviceOptions& o) {
-  // --- validate everything before connecting
+/// Every option checked before anything connects: the session's options
+/// (hello, link, local model), the hand script and the start pose if given.
+client::SessionOptions CheckedSessionOptions(const DeviceOptions& o, device::HandScript* script,
+                                             std::optional<Pose>* start) {
   client::SessionOptions so;
   so.server = o.conn.server;
   so.token = o.conn.token;
@@ -129,77 +118,37 @@ void RunDevice(const DeviceOptions& o) {
   so.patch_max_triangles = o.patch_triangles;
   // No delay, jitter or loss: no emulator at all (the session's direct path).
   if (o.link.delay_ms > 0 || o.link.jitter_ms > 0 || o.link.loss > 0) so.link = o.link;
-  device::HandScript script = device::HandScript::kHold;
+  *script = device::HandScript::kHold;
   if (!o.simulated.empty()) {
     try {
-      script = device::ParseHandScript(o.simulated);
+      *script = device::ParseHandScript(o.simulated);
     } catch (const std::invalid_argument& e) {
       throw CommandError(std::string("device: --simulated: ") + e.what());
     }
   }
-  std::optional<Pose> start;
-  if (!o.start.empty()) start = wire::FromProtoUnchecked(ParsePose(o.start, "--start"));
+  if (!o.start.empty()) *start = wire::FromProtoUnchecked(ParsePose(o.start, "--start"));
+  return so;
+}
 
-  // --- connect, then build the device and the loop around the welcome
-  client::Session session(so);
-  try {
-    session.Connect();
-  } catch (const client::SessionError& e) {
-    throw CommandError(std::string("device: ") + e.what() + " (server " + o.conn.server + ")");
-  }
-  if (!start) start = DefaultStart(o, session.welcome());
-  const auto& clock = device::SteadyClock::Instance();
-  // The device's workspace is centred on the start pose.
-  const Pose X_WD = Pose::FromTranslation(start->t);
-  std::unique_ptr<device::HapticDevice> dev;
+/// The hand: a simulated script from `start` (its workspace centred there),
+/// or a replayed trajectory.
+std::unique_ptr<device::HapticDevice> MakeHand(const DeviceOptions& o, device::HandScript script,
+                                               const Pose& start, const device::Clock& clock) {
   if (!o.simulated.empty()) {
     device::ScriptParams sp;
     sp.script = script;
-    sp.X_DS = Pose{start->R, Vec3::Zero()};
+    sp.X_DS = Pose{start.R, Vec3::Zero()};
     sp.duration_s = std::max(0.5, 0.9 * o.duration);
     sp.travel = o.travel;
-    dev = std::make_unique<device::SimulatedDevice>(sp, &clock);
-  } else {
-    dev = std::make_unique<device::ReplayDevice>(o.replay, &clock);
+    return std::make_unique<device::SimulatedDevice>(sp, &clock);
   }
-  std::unique_ptr<device::RecordingDevice> rec;
-  device::HapticDevice* used = dev.get();
-  if (!o.record.empty()) {
-    rec = std::make_unique<device::RecordingDevice>(
-        dev.get(), static_cast<std::size_t>(o.duration * 1000 * 1.1) + 1000);
-    used = rec.get();
-  }
-  used->Open();
-  device::ServoConfig config;
-  config.X_PA = session.X_PA();
-  config.X_WD = X_WD;
-  // The scene's declared effects (Welcome.scene_config).
-  config.effects = client::EffectsFromSceneConfig(session.welcome().scene_config());
-  config.effect_params = client::EffectParamsFromSceneConfig(session.welcome().scene_config());
-  if (rec) {
-    // Version 2: what `hapticpd view --replay` needs to show the session.
-    rec->SetHeader({{"scene", o.scene},
-                    {"server", o.conn.server},
-                    {"probe", o.probe_body.empty() ? o.probe : "body:" + o.probe_body},
-                    {"mode", o.mode},
-                    {"X_WD", device::PoseValue(X_WD)},
-                    {"X_PA", device::PoseValue(session.X_PA())}});
-    config.recorder = rec.get();
-  }
-  device::ServoLoop loop(used, config, &clock);
-  session.Start(&loop);
-  loop.Start();
-  const auto t0 = std::chrono::steady_clock::now();
-  std::this_thread::sleep_for(std::chrono::duration<double>(o.duration));
-  loop.Stop();
-  const double elapsed =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  session.Stop();
-  used->Close();
-  if (rec) rec->Save(o.record);
+  return std::make_unique<device::ReplayDevice>(o.replay, &clock);
+}
 
+/// The run's statistics, as `--json` prints them.
+nlohmann::json DeviceJson(const DeviceOptions& o, const device::ServoLoop& loop,
+                          const client::SessionStats& ss, double elapsed) {
   const device::ServoStats& s = loop.stats();
-  const client::SessionStats ss = session.stats();
   const double period_mean = s.period_us.mean();
   nlohmann::json j;
   j["loop_hz"] = period_mean > 0 ? 1e6 / period_mean : 0.0;
@@ -266,10 +215,15 @@ void RunDevice(const DeviceOptions& o) {
                  {"updates_sent", ss.link.updates.sent},
                  {"updates_lost", ss.link.updates.lost + ss.link.updates.overflow}};
   }
-  if (o.json) {
-    std::cout << j.dump() << std::endl;
-    return;
-  }
+  return j;
+}
+
+/// The run's statistics as text.
+void PrintDevice(const DeviceOptions& o, const nlohmann::json& j, const device::ServoLoop& loop,
+                 const client::Session& session, const device::RecordingDevice* rec) {
+  const device::ServoStats& s = loop.stats();
+  const client::SessionStats ss = session.stats();
+  const double elapsed = j["elapsed_s"].get<double>();
   std::printf(
       "device: %.1f s on scene '%s' (%s), session %s\n"
       "  loop   %.1f Hz, period p50 %.0f us p99 %.0f us max %.0f us, %llu late ticks%s\n"
@@ -321,6 +275,67 @@ void RunDevice(const DeviceOptions& o) {
                 ss.last_error.c_str());
   }
   if (rec) std::printf("  recorded %zu samples to %s\n", rec->samples().size(), o.record.c_str());
+}
+
+void RunDevice(const DeviceOptions& o) {
+  device::HandScript script;
+  std::optional<Pose> start;
+  const client::SessionOptions so = CheckedSessionOptions(o, &script, &start);
+  // --- connect, then build the device and the loop around the welcome
+  client::Session session(so);
+  try {
+    session.Connect();
+  } catch (const client::SessionError& e) {
+    throw CommandError(std::string("device: ") + e.what() + " (server " + o.conn.server + ")");
+  }
+  if (!start) start = DefaultStart(o, session.welcome());
+  const auto& clock = device::SteadyClock::Instance();
+  // The device's workspace is centred on the start pose.
+  const Pose X_WD = Pose::FromTranslation(start->t);
+  std::unique_ptr<device::HapticDevice> dev = MakeHand(o, script, *start, clock);
+  std::unique_ptr<device::RecordingDevice> rec;
+  device::HapticDevice* used = dev.get();
+  if (!o.record.empty()) {
+    rec = std::make_unique<device::RecordingDevice>(
+        dev.get(), static_cast<std::size_t>(o.duration * 1000 * 1.1) + 1000);
+    used = rec.get();
+  }
+  used->Open();
+  device::ServoConfig config;
+  config.X_PA = session.X_PA();
+  config.X_WD = X_WD;
+  // The scene's declared effects (Welcome.scene_config).
+  config.effects = client::EffectsFromSceneConfig(session.welcome().scene_config());
+  config.effect_params = client::EffectParamsFromSceneConfig(session.welcome().scene_config());
+  if (rec) {
+    // Version 2: what `hapticpd view --replay` needs to show the session.
+    rec->SetHeader({{"scene", o.scene},
+                    {"server", o.conn.server},
+                    {"probe", o.probe_body.empty() ? o.probe : "body:" + o.probe_body},
+                    {"mode", o.mode},
+                    {"X_WD", device::PoseValue(X_WD)},
+                    {"X_PA", device::PoseValue(session.X_PA())}});
+    config.recorder = rec.get();
+  }
+  device::ServoLoop loop(used, config, &clock);
+  session.Start(&loop);
+  loop.Start();
+  const auto t0 = std::chrono::steady_clock::now();
+  std::this_thread::sleep_for(std::chrono::duration<double>(o.duration));
+  loop.Stop();
+  const double elapsed =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  session.Stop();
+  used->Close();
+  if (rec) rec->Save(o.record);
+
+  const client::SessionStats ss = session.stats();
+  const nlohmann::json j = DeviceJson(o, loop, ss, elapsed);
+  if (o.json) {
+    std::cout << j.dump() << std::endl;
+    return;
+  }
+  PrintDevice(o, j, loop, session, rec.get());
 }
 
 }  // namespace

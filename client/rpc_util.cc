@@ -3,10 +3,12 @@
 #include <chrono>
 #include <cstdlib>
 #include <fstream>
+#include <limits>
 #include <random>
 #include <sstream>
 #include <vector>
 
+#include "proto/wire/convert.h"
 #include "proto/wire/routing.h"
 #include "proto/wire/status.h"
 
@@ -141,6 +143,24 @@ v1::Twist ParseTwist(const std::string& text, const std::string& option) {
     t.mutable_angular()->set_z(v[5]);
   }
   return t;
+}
+
+std::pair<Vec3, Vec3> SceneBox(const v1::Scene& scene, const std::string& skip_body_id) {
+  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity());
+  Vec3 hi = -lo;
+  for (const v1::Body& b : scene.bodies()) {
+    if (!skip_body_id.empty() && b.body_id() == skip_body_id) continue;
+    const Pose X = wire::FromProtoUnchecked(b.pose());
+    const Vec3 a = wire::FromProtoUnchecked(b.mesh_info().aabb_min()),
+               c = wire::FromProtoUnchecked(b.mesh_info().aabb_max());
+    for (int i = 0; i < 8; ++i) {
+      const Vec3 p((i & 1) ? c.x() : a.x(), (i & 2) ? c.y() : a.y(), (i & 4) ? c.z() : a.z());
+      lo = lo.cwiseMin(X * p);
+      hi = hi.cwiseMax(X * p);
+    }
+  }
+  if (!lo.allFinite()) lo = hi = Vec3::Zero();
+  return {lo, hi};
 }
 
 }  // namespace hapticpd::cli

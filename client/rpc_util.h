@@ -8,9 +8,12 @@
 #include <CLI/CLI.hpp>
 #include <memory>
 #include <string>
+#include <utility>
 
 #include "client/commands.h"
+#include "hapticpd/v1/scene.pb.h"
 #include "hapticpd/v1/types.pb.h"
+#include "pd/types.h"
 
 namespace hapticpd::cli {
 
@@ -55,5 +58,9 @@ std::string NewRequestId();
 v1::Pose ParsePose(const std::string& text, const std::string& option);
 /// "vx,vy,vz" or "vx,vy,vz,wx,wy,wz".
 v1::Twist ParseTwist(const std::string& text, const std::string& option);
+
+/// The world bounding box (lo, hi) of a scene's bodies, leaving out the body
+/// `skip_body_id` (a device's probe body); both zero for an empty scene.
+std::pair<Vec3, Vec3> SceneBox(const v1::Scene& scene, const std::string& skip_body_id = "");
 
 }  // namespace hapticpd::cli
