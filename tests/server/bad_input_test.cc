@@ -31,7 +31,7 @@ constexpr char kTokens[] = R"({"tokens": [
 ]})";
 
 struct Row {
-  std::string request;                    // the RPC
+  std::string rpc;                        // the RPC
   std::string what;                       // the bad-input class (README markdown)
   std::function<grpc::Status()> request;  // issues it
   grpc::StatusCode code;
@@ -150,15 +150,14 @@ class BadInputTable : public ::testing::Test {
   /// Runs every row: exact code and message, and an unchanged server.
   void Check(const std::vector<Row>& rows) {
     for (const Row& r : rows) {
-      SCOPED_TRACE(r.request + ": " + r.what);
+      SCOPED_TRACE(r.rpc + ": " + r.what);
       const std::string before = Snapshot(*scenes_);
       const grpc::Status s = r.request();
       EXPECT_STREQ(wire::StatusCodeName(s.error_code()), wire::StatusCodeName(r.code))
           << s.error_message();
       EXPECT_EQ(s.error_message(), r.message);
       EXPECT_TRUE(Snapshot(*scenes_) == before) << "the rejected request changed the server";
-      PrintTableRow({r.request, r.what},
-                    std::string(wire::StatusCodeName(r.code)) + ": " + r.message);
+      PrintTableRow({r.rpc, r.what}, std::string(wire::StatusCodeName(r.code)) + ": " + r.message);
     }
   }
 
