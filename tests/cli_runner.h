@@ -23,13 +23,15 @@ struct RunResult {
 };
 
 /// Runs the executable at `path` with ARGS (shell text, quote as in a
-/// terminal).
-inline RunResult RunExecutable(const std::string& path, const std::string& args) {
+/// terminal), in the folder `cwd` when one is given.
+inline RunResult RunExecutable(const std::string& path, const std::string& args,
+                               const std::filesystem::path& cwd = {}) {
   static std::atomic<int> counter{0};
   const std::filesystem::path err_path =
       std::filesystem::temp_directory_path() / ("hapticpd_cli_test_" + std::to_string(::getpid()) +
                                                 "_" + std::to_string(counter++) + ".err");
-  const std::string cmd = std::string("'") + path + "' " + args + " 2>'" + err_path.string() + "'";
+  std::string cmd = std::string("'") + path + "' " + args + " 2>'" + err_path.string() + "'";
+  if (!cwd.empty()) cmd = "cd '" + cwd.string() + "' && " + cmd;
   RunResult r;
   FILE* pipe = ::popen(cmd.c_str(), "r");
   if (pipe == nullptr) {
@@ -49,7 +51,9 @@ inline RunResult RunExecutable(const std::string& path, const std::string& args)
   return r;
 }
 
-/// Runs `hapticpd ARGS`.
-inline RunResult RunCli(const std::string& args) { return RunExecutable(HAPTICPD_CLI_PATH, args); }
+/// Runs `hapticpd ARGS` (in `cwd` when one is given).
+inline RunResult RunCli(const std::string& args, const std::filesystem::path& cwd = {}) {
+  return RunExecutable(HAPTICPD_CLI_PATH, args, cwd);
+}
 
 }  // namespace hapticpd::testing

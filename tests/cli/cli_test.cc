@@ -16,6 +16,7 @@
 #include <string>
 
 #include "tests/cli_runner.h"
+#include "tests/readme_table.h"
 #include "tests/test_util.h"
 
 namespace hapticpd::testing {
@@ -351,6 +352,78 @@ TEST(CliTest, PdBadInput) {
   ExpectOneLineError("pd --probe shape:box" + ok_pose, "--scene");
   ExpectOneLineError(std::string(kBoxes), "--pose");
   ExpectOneLineError(std::string(kBoxes) + ok_pose + " --no-such-flag", "--no-such-flag");
+}
+
+// tests/README.md "Bad input", "CLI": every row is a case here, its input
+// and the whole line the user gets on stderr (exit code 1, nothing on
+// stdout). Run from the repository root, so that the paths in the messages
+// are the relative ones a user types. HAPTICPD_PRINT_TABLE=1 prints the rows
+// (tests/update_tables.py).
+TEST(CliTest, BadInputTable) {
+  struct Case {
+    std::string what;  // the bad input (README markdown)
+    std::string args;
+    std::string err;  // the whole of stderr but its newline
+  };
+  const std::string boxes_at = std::string(kBoxes) + " --pose ";
+  const std::string box_scene = " --scene shape:box --pose '1.5 0 0 1 0 0 0'";
+  // `mesh-info FILE`: the message names the file first.
+  auto file = [](std::string what, const std::string& rel, const std::string& msg) {
+    return Case{std::move(what), "mesh-info " + rel, "hapticpd: " + rel + ": " + msg};
+  };
+  const Case cases[] = {
+      {"missing file", "pd --probe /nonexistent/probe.obj" + box_scene,
+       "hapticpd: /nonexistent/probe.obj: no such file"},
+      {"NaN in `--pose`", boxes_at + "'1.5 nan 0 1 0 0 0'",
+       "hapticpd: --pose: ty is nan, expected a finite number"},
+      {"quaternion not unit", boxes_at + "'1.5 0 0 1 0 0 1'",
+       "hapticpd: --pose: quaternion (w x y z) has norm 1.41421356, expected 1 (within 1e-3)"},
+      {"wrong number count", boxes_at + "'1.5 0 0 1 0 0'",
+       "hapticpd: --pose: expected 7 numbers \"tx ty tz qw qx qy qz\", got 6"},
+      {"unknown shape", "pd --probe shape:nosuchshape" + box_scene,
+       "hapticpd: shape spec 'nosuchshape': unknown shape 'nosuchshape'; known shapes: box, "
+       "sphere, capsule, cylinder, stick, torus, torusknot, plate, spoon, cup, hammer"},
+      file("empty file", "tests/data/bad/empty.obj", "file is empty"),
+      file("NaN vertex (OBJ)", "tests/data/bad/nan_vertex.obj",
+           "line 3: vertex has a non-finite coordinate (v nan 1 0)"),
+      file("infinite vertex (OFF)", "tests/data/bad/infinite_vertex.off",
+           "line 4: vertex 1 has a non-finite coordinate (1e400)"),
+      file("OBJ face corner without a vertex index (`f /x/`, also after a tab: `f<TAB>/x/`; "
+           "OpenMesh's reader would abort the process)",
+           "tests/fuzz/corpus/mesh_obj/crash-openmesh-face-assert-tab.obj",
+           "line 1: face corner '/" + std::string(9, '?') +  // 9 bytes shown as '?'
+               "/' does not start with a vertex index"),
+      file("index out of range", "tests/data/bad/index_out_of_range.obj",
+           "face 0 refers to vertex 8, out of range [0, 3)"),
+      file("no faces", "tests/data/bad/no_faces.obj", "no faces found"),
+      file("only degenerate faces", "tests/data/bad/degenerate_only.obj",
+           "no non-degenerate triangles (the reader skipped all 2 face(s): repeated or invalid "
+           "vertex indices)"),
+      file("truncated OFF", "tests/data/bad/truncated.off",
+           "line 5: vertex 2 has 2 numbers, expected 3"),
+      file("truncated STL", "tests/data/bad/truncated.stl",
+           "not a valid STL: binary header says 1000 triangles (50084 bytes) but the file has 184 "
+           "bytes, and it is not ASCII STL"),
+      file("garbage STL", "tests/data/bad/garbage.stl",
+           "not a valid STL: binary header says 1303066130 triangles (65153306584 bytes) but the "
+           "file has 600 bytes, and it is not ASCII STL"),
+      file("truncated PLY", "tests/data/bad/truncated.ply",
+           "truncated after line 12: the header promises 8 vertex elements, the file holds 3"),
+      file("garbage PLY", "tests/data/bad/garbage.ply",
+           "not a valid PLY: missing the 'ply' magic line"),
+      file("unknown extension", "tests/data/bad/unknown.xyz",
+           "unsupported extension '.xyz' (supported: .obj, .off, .stl, .ply)"),
+  };
+  const std::filesystem::path root =
+      std::filesystem::path(HAPTICPD_TESTDATA_DIR).parent_path().parent_path();
+  for (const Case& c : cases) {
+    SCOPED_TRACE("hapticpd " + c.args);
+    const RunResult r = RunCli(c.args, root);
+    EXPECT_EQ(r.exit_code, 1);
+    EXPECT_EQ(r.out, "");
+    EXPECT_EQ(r.err, c.err + "\n");
+    PrintTableRow({c.what}, c.err);
+  }
 }
 
 // The network commands and `device` build their TLS credentials the same

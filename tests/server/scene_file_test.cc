@@ -14,6 +14,7 @@
 #include <iostream>
 
 #include "server/server.h"
+#include "tests/readme_table.h"
 #include "tests/server/server_harness.h"
 
 namespace hapticpd::testing {
@@ -109,15 +110,23 @@ TEST_F(SceneFileParse, CommittedScenesParse) {
   }
 }
 
+// A case with a `readme` description is a row of tests/README.md "Bad
+// input", "Scene files": its message is checked whole ("…" stands for text
+// the check skips), and HAPTICPD_PRINT_TABLE=1 prints it as the row
+// (tests/update_tables.py); the others are checked up to their length.
 TEST_F(SceneFileParse, BadFilesNameKeyAndFile) {
   struct Case {
     const char* text;
-    const char* expect;  // the message after "FILE: "
+    const char* expect;            // the message after "FILE: "
+    const char* readme = nullptr;  // the bad input, for a README row
   };
   const Case cases[] = {
       // unknown keys, at every level
       {R"({"scenes": "x"})", "scenes: unknown key"},
-      {R"({"bodies": [{"shape": "box", "colour": 1}]})", "bodies[0].colour: unknown key"},
+      {R"({"bodies": [{"shape": "box", "colour": 1}]})",
+       "bodies[0].colour: unknown key (expected one of: id, label, mesh, shape, pose, material, "
+       "movable, velocity)",
+       "unknown key"},
       {R"({"bodies": [{"shape": "box", "material": {"stifness": 1}}]})",
        "bodies[0].material.stifness: unknown key"},
       {R"({"probe": {"shape": "stick", "weight": 1}})", "probe.weight: unknown key"},
@@ -134,7 +143,7 @@ TEST_F(SceneFileParse, BadFilesNameKeyAndFile) {
       {R"({"effects": "contact"})", "effects: expected a list"},
       // invalid values
       {R"({"bodies": [{"shape": "box", "material": {"stiffness": -5}}]})",
-       "bodies[0].material.stiffness: must be in [0, 1e+07] N/m, got -5"},
+       "bodies[0].material.stiffness: must be in [0, 1e+07] N/m, got -5", "value out of its range"},
       {R"({"bodies": [{"shape": "box", "material": {"stiffness": 1e9}}]})",
        "bodies[0].material.stiffness: must be in [0, 1e+07] N/m, got 1e+09"},
       {R"({"bodies": [{"shape": "box", "pose": {"position": [0, 2e4, 0]}}]})",
@@ -149,7 +158,8 @@ TEST_F(SceneFileParse, BadFilesNameKeyAndFile) {
        "5)"},
       {R"({"bodies": [{"shape": "box:0.1"}]})",
        "bodies[0].shape: shape spec 'box:0.1': 'box' needs all of hx,hy,hz or none (for the "
-       "defaults); missing hy,hz"},
+       "defaults); missing hy,hz",
+       "malformed shape spec"},
       {R"({"bodies": [{"shape": "box:0.1,0.1,0.1,1000000"}]})",
        "bodies[0].shape: 12000000000000 triangles exceed the server limit of 2000000"},
       {R"({"probe": {"shape": "teapot"}})", "probe.shape: shape spec 'teapot': unknown shape"},
@@ -157,7 +167,8 @@ TEST_F(SceneFileParse, BadFilesNameKeyAndFile) {
       {R"({"texture": {"amplitude": 11}})", "texture.amplitude: must be in [0, 10] N, got 11"},
       {R"({"bodies": [{"shape": "box", "material": {"static_friction": 0.2,
           "dynamic_friction": 0.5}}]})",
-       "bodies[0].material.dynamic_friction: must not exceed static_friction (0.5 > 0.2)"},
+       "bodies[0].material.dynamic_friction: must not exceed static_friction (0.5 > 0.2)",
+       "dynamic friction above static"},
       {R"({"probe": {"shape": "stick", "mass": -1}})",
        "probe.mass: must be 0 (not given) or in [1e-06, 1000] kg, got -1"},
       {R"({"probe": {"shape": "stick", "mass": 1, "inertia": 1e4}})",
@@ -165,20 +176,34 @@ TEST_F(SceneFileParse, BadFilesNameKeyAndFile) {
       {R"({"probe": {"shape": "stick", "inertia": 1e-6}})", "probe.inertia: needs \"mass\""},
       {R"({"texture": {"frequency": 2000}})",
        "texture.frequency: must be in [0, 500] Hz, got 2000"},
-      {R"({"mode": "pdx"})", "mode: unknown PD mode 'pdx'"},
-      {R"({"effects": ["contact", "frication"]})", "effects[1]: unknown effect 'frication'"},
+      {R"({"mode": "pdx"})", "mode: unknown PD mode 'pdx' (expected none, pdt or pdg)",
+       "unknown PD mode"},
+      {R"({"effects": ["contact", "frication"]})",
+       "effects[1]: unknown effect 'frication' (expected contact, damping, friction, weight, "
+       "texture or torque)",
+       "unknown effect"},
       {R"({"effects": ["contact", "contact"]})", "effects[1]: effect 'contact' is listed twice"},
       // missing files and shapes
       {R"({"bodies": [{"id": "a", "mesh": "nope.obj"}]})", "bodies[0].mesh: mesh file '"},
+      {R"({"bodies": [{"id": "a", "mesh": "/nonexistent/nope.obj"}]})",
+       "bodies[0].mesh: mesh file '/nonexistent/nope.obj' not found", "missing mesh file"},
       {R"({"probe": {"mesh": "nope.obj"}})", "probe.mesh: mesh file '"},
       {R"({"bodies": [{"id": "a"}]})", "bodies[0]: give exactly one of"},
       {R"({"bodies": [{"mesh": "tet.obj", "shape": "box"}]})", "bodies[0]: give exactly one of"},
       // not JSON at all
       {R"({"bodies": [)", "not valid JSON"},
+      {"{\"bodies\": [\n",
+       "not valid JSON ([json.exception.parse_error.101] parse error at line 2, column 1: …)",
+       "not JSON"},
   };
   for (const Case& c : cases) {
     const std::string e = Error(c.text);
-    EXPECT_EQ(e.rfind(c.expect, 0), 0u) << c.text << "\n  gave: " << e;
+    if (c.readme == nullptr) {
+      EXPECT_EQ(e.rfind(c.expect, 0), 0u) << c.text << "\n  gave: " << e;
+      continue;
+    }
+    EXPECT_TRUE(MessageMatches(e, c.expect)) << c.text << "\n  gave: " << e;
+    PrintTableRow({c.readme}, c.expect);
   }
 }
 
