@@ -105,17 +105,32 @@ void Check(const grpc::Status& s, const std::string& cmd) {
   throw CommandError(cmd + ": " + StatusText(s));
 }
 
-v1::Pose ParsePose(const std::string& text, const std::string& option) {
-  const auto v = ParseNumbers(text, option);
-  if (v.size() != 3 && v.size() != 7) {
-    throw CommandError(option +
-                       ": expected 'x y z' or 'x y z qw qx qy qz' (commas or spaces), got '" +
-                       text + "'");
+namespace {
+
+/// `text`'s numbers, `count` or `long_count` of them (else a CommandError
+/// that shows `usage`).
+std::vector<double> ParseCounted(const std::string& text, const std::string& option,
+                                 std::size_t count, std::size_t long_count, const char* usage) {
+  auto v = ParseNumbers(text, option);
+  if (v.size() != count && v.size() != long_count) {
+    throw CommandError(option + ": expected " + usage + " (commas or spaces), got '" + text + "'");
   }
+  return v;
+}
+
+/// v[at], v[at + 1], v[at + 2] into `out`.
+void SetXyz(const std::vector<double>& v, std::size_t at, v1::Vec3* out) {
+  out->set_x(v[at]);
+  out->set_y(v[at + 1]);
+  out->set_z(v[at + 2]);
+}
+
+}  // namespace
+
+v1::Pose ParsePose(const std::string& text, const std::string& option) {
+  const auto v = ParseCounted(text, option, 3, 7, "'x y z' or 'x y z qw qx qy qz'");
   v1::Pose p;
-  p.mutable_position()->set_x(v[0]);
-  p.mutable_position()->set_y(v[1]);
-  p.mutable_position()->set_z(v[2]);
+  SetXyz(v, 0, p.mutable_position());
   if (v.size() == 7) {
     auto* q = p.mutable_orientation();
     q->set_w(v[3]);
@@ -127,21 +142,10 @@ v1::Pose ParsePose(const std::string& text, const std::string& option) {
 }
 
 v1::Twist ParseTwist(const std::string& text, const std::string& option) {
-  const auto v = ParseNumbers(text, option);
-  if (v.size() != 3 && v.size() != 6) {
-    throw CommandError(option +
-                       ": expected 'vx vy vz' or 'vx vy vz wx wy wz' (commas or spaces), got '" +
-                       text + "'");
-  }
+  const auto v = ParseCounted(text, option, 3, 6, "'vx vy vz' or 'vx vy vz wx wy wz'");
   v1::Twist t;
-  t.mutable_linear()->set_x(v[0]);
-  t.mutable_linear()->set_y(v[1]);
-  t.mutable_linear()->set_z(v[2]);
-  if (v.size() == 6) {
-    t.mutable_angular()->set_x(v[3]);
-    t.mutable_angular()->set_y(v[4]);
-    t.mutable_angular()->set_z(v[5]);
-  }
+  SetXyz(v, 0, t.mutable_linear());
+  if (v.size() == 6) SetXyz(v, 3, t.mutable_angular());
   return t;
 }
 

@@ -3,6 +3,8 @@
 #include <cmath>
 #include <numbers>
 #include <stdexcept>
+#include <string>
+#include <utility>
 
 #include "device/math.h"
 
@@ -10,34 +12,28 @@ namespace hapticpd::device {
 
 using internal::SmoothStep;
 
+namespace {
+/// Each script's name (--script), in the order the error message lists them.
+constexpr std::pair<HandScript, const char*> kHandScriptNames[] = {
+    {HandScript::kHold, "hold"},   {HandScript::kPress, "press"},   {HandScript::kSlide, "slide"},
+    {HandScript::kTwist, "twist"}, {HandScript::kCircle, "circle"}, {HandScript::kLoop, "loop"},
+    {HandScript::kPlate, "plate"}};
+}  // namespace
+
 const char* ToString(HandScript s) {
-  switch (s) {
-    case HandScript::kHold:
-      return "hold";
-    case HandScript::kPress:
-      return "press";
-    case HandScript::kSlide:
-      return "slide";
-    case HandScript::kTwist:
-      return "twist";
-    case HandScript::kCircle:
-      return "circle";
-    case HandScript::kLoop:
-      return "loop";
-    case HandScript::kPlate:
-      return "plate";
+  for (const auto& [script, name] : kHandScriptNames) {
+    if (s == script) return name;
   }
   return "?";
 }
 
 HandScript ParseHandScript(const std::string& name) {
-  for (HandScript s :
-       {HandScript::kHold, HandScript::kPress, HandScript::kSlide, HandScript::kTwist,
-        HandScript::kCircle, HandScript::kLoop, HandScript::kPlate}) {
-    if (name == ToString(s)) return s;
+  std::string names;
+  for (const auto& [script, script_name] : kHandScriptNames) {
+    if (name == script_name) return script;
+    names += (names.empty() ? "" : ", ") + std::string(script_name);
   }
-  throw std::invalid_argument("unknown hand script '" + name +
-                              "' (hold, press, slide, twist, circle, loop, plate)");
+  throw std::invalid_argument("unknown hand script '" + name + "' (" + names + ")");
 }
 
 namespace {

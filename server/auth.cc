@@ -5,32 +5,31 @@
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
+#include <utility>
 
 namespace hapticpd::server {
 namespace {
 
 std::uint8_t Bit(Role r) { return static_cast<std::uint8_t>(r); }
 
+/// Each role's name in a token file and in messages.
+constexpr std::pair<Role, const char*> kRoleNames[] = {{Role::kObserve, "observe"},
+                                                       {Role::kInject, "inject"},
+                                                       {Role::kDevice, "device"},
+                                                       {Role::kAdmin, "admin"}};
+
 std::optional<Role> ParseRole(const std::string& s) {
-  if (s == "observe") return Role::kObserve;
-  if (s == "inject") return Role::kInject;
-  if (s == "device") return Role::kDevice;
-  if (s == "admin") return Role::kAdmin;
+  for (const auto& [role, name] : kRoleNames) {
+    if (s == name) return role;
+  }
   return std::nullopt;
 }
 
 }  // namespace
 
 const char* ToString(Role r) {
-  switch (r) {
-    case Role::kObserve:
-      return "observe";
-    case Role::kInject:
-      return "inject";
-    case Role::kDevice:
-      return "device";
-    case Role::kAdmin:
-      return "admin";
+  for (const auto& [role, name] : kRoleNames) {
+    if (r == role) return name;
   }
   return "?";
 }

@@ -83,6 +83,21 @@ class RequestIdCall {
   bool durable_ = false;
 };
 
+/// A mutation's common part: the gate and the token, then the request id
+/// (RequestIdCall), then `run(request)`, whose outcome End records.
+template <class Run>
+grpc::ServerUnaryReactor* RunMutation(Core* core, grpc::CallbackServerContext* ctx,
+                                      const char* method, const std::string& request_id,
+                                      google::protobuf::Message* resp, const Run& run) {
+  if (auto s = core->Gate(); !s.ok()) return Done(ctx, s);
+  if (auto s = core->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
+  RequestIdCall request(core, method);
+  grpc::Status replay;
+  if (!request.Start(ClientKey(core->tokens, *ctx), request_id, resp, &replay))
+    return Done(ctx, replay);
+  return Done(ctx, request.End(run(request), *resp));
+}
+
 /// Receives a body upload, then builds it on the build queue.
 class AddBodyReactor final : public grpc::ServerReadReactor<v1::AddBodyRequest>,
                              public StoppableCall {
@@ -397,13 +412,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerCont
                                                         const v1::CreateSceneRequest* req,
                                                         v1::SceneSummary* resp) {
   const ServiceCall call(this);
-  if (auto s = core_->Gate(); !s.ok()) return Done(ctx, s);
-  if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
-  RequestIdCall request(core_, "CreateScene");
-  grpc::Status replay;
-  if (!request.Start(ClientKey(core_->tokens, *ctx), req->request_id(), resp, &replay))
-    return Done(ctx, replay);
-  auto run = [&]() -> grpc::Status {
+  auto run = [&](RequestIdCall& request) -> grpc::Status {
     if (auto s = ValidateId(req->scene_id(), "scene_id"); !s.ok()) return s;
     if (auto s = wire::CheckSceneHeader(*ctx, req->scene_id()); !s.ok()) return s;
     if (req->description().size() > 1024) {
@@ -433,7 +442,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::CreateScene(grpc::CallbackServerCont
     Log()->info("created scene '{}'", scene->id());
     return grpc::Status::OK;
   };
-  return Done(ctx, request.End(run(), *resp));
+  return RunMutation(core_, ctx, "CreateScene", req->request_id(), resp, run);
 }
 
 grpc::ServerUnaryReactor* SceneServiceImpl::ListScenes(grpc::CallbackServerContext* ctx,
@@ -473,13 +482,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::DeleteScene(grpc::CallbackServerCont
                                                         const v1::DeleteSceneRequest* req,
                                                         v1::DeleteSceneResponse* resp) {
   const ServiceCall call(this);
-  if (auto s = core_->Gate(); !s.ok()) return Done(ctx, s);
-  if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
-  RequestIdCall request(core_, "DeleteScene");
-  grpc::Status replay;
-  if (!request.Start(ClientKey(core_->tokens, *ctx), req->request_id(), resp, &replay))
-    return Done(ctx, replay);
-  auto run = [&]() -> grpc::Status {
+  auto run = [&](RequestIdCall& request) -> grpc::Status {
     ScenePtr scene;
     if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kAdmin, &scene); !s.ok())
       return s;
@@ -499,7 +502,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::DeleteScene(grpc::CallbackServerCont
     Log()->info("deleted scene '{}'", removed->id());
     return grpc::Status::OK;
   };
-  return Done(ctx, request.End(run(), *resp));
+  return RunMutation(core_, ctx, "DeleteScene", req->request_id(), resp, run);
 }
 
 grpc::ServerReadReactor<v1::AddBodyRequest>* SceneServiceImpl::AddBody(
@@ -512,13 +515,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::MoveBody(grpc::CallbackServerContext
                                                      const v1::MoveBodyRequest* req,
                                                      v1::MoveBodyResponse* resp) {
   const ServiceCall call(this);
-  if (auto s = core_->Gate(); !s.ok()) return Done(ctx, s);
-  if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
-  RequestIdCall request(core_, "MoveBody");
-  grpc::Status replay;
-  if (!request.Start(ClientKey(core_->tokens, *ctx), req->request_id(), resp, &replay))
-    return Done(ctx, replay);
-  auto run = [&]() -> grpc::Status {
+  auto run = [&](RequestIdCall&) -> grpc::Status {
     ScenePtr scene;
     if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kInject, &scene); !s.ok())
       return s;
@@ -548,20 +545,14 @@ grpc::ServerUnaryReactor* SceneServiceImpl::MoveBody(grpc::CallbackServerContext
     resp->set_revision(rev);
     return grpc::Status::OK;
   };
-  return Done(ctx, request.End(run(), *resp));
+  return RunMutation(core_, ctx, "MoveBody", req->request_id(), resp, run);
 }
 
 grpc::ServerUnaryReactor* SceneServiceImpl::RemoveBody(grpc::CallbackServerContext* ctx,
                                                        const v1::RemoveBodyRequest* req,
                                                        v1::RemoveBodyResponse* resp) {
   const ServiceCall call(this);
-  if (auto s = core_->Gate(); !s.ok()) return Done(ctx, s);
-  if (auto s = core_->tokens.CheckAnyToken(*ctx); !s.ok()) return Done(ctx, s);
-  RequestIdCall request(core_, "RemoveBody");
-  grpc::Status replay;
-  if (!request.Start(ClientKey(core_->tokens, *ctx), req->request_id(), resp, &replay))
-    return Done(ctx, replay);
-  auto run = [&]() -> grpc::Status {
+  auto run = [&](RequestIdCall& request) -> grpc::Status {
     ScenePtr scene;
     if (auto s = ResolveScene(core_, *ctx, req->scene_id(), Role::kInject, &scene); !s.ok())
       return s;
@@ -580,7 +571,7 @@ grpc::ServerUnaryReactor* SceneServiceImpl::RemoveBody(grpc::CallbackServerConte
     Log()->info("scene '{}': removed body '{}'", scene->id(), req->body_id());
     return grpc::Status::OK;
   };
-  return Done(ctx, request.End(run(), *resp));
+  return RunMutation(core_, ctx, "RemoveBody", req->request_id(), resp, run);
 }
 
 grpc::ServerWriteReactor<v1::SceneEvent>* SceneServiceImpl::Watch(grpc::CallbackServerContext* ctx,

@@ -3,9 +3,11 @@
 #include <cstdlib>
 #include <ctime>
 #include <filesystem>
+#include <iostream>
 #include <system_error>
 
 #include "client/commands.h"
+#include "pd/mesh.h"
 
 namespace hapticpd::cli {
 
@@ -72,6 +74,33 @@ void AddCommonBenchOptions(CLI::App* cmd, const std::shared_ptr<BenchOptions>& o
   cmd->add_flag("--tiny", o->tiny,
                 "Small procedural meshes instead of the benchmarks (for tests: seconds, not "
                 "minutes)");
+}
+
+void SetUpApp(CLI::App& app, const std::string& program) {
+  app.require_subcommand(1);
+  app.set_help_all_flag("--help-all", "Show help for every subcommand");
+  // Command-line errors too get one line on stderr, like every other bad input.
+  app.failure_message([program](const CLI::App*, const CLI::Error& e) {
+    return program + ": " + e.what() + " (run with --help for usage)\n";
+  });
+}
+
+int RunApp(CLI::App& app, const std::string& program, int argc, char** argv) {
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const CommandError& e) {
+    std::cerr << program << ": " << e.what() << "\n";
+    return 1;
+  } catch (const pd::MeshError& e) {
+    std::cerr << program << ": " << e.what() << "\n";
+    return 1;
+  } catch (const std::exception& e) {
+    std::cerr << program << ": error: " << e.what() << "\n";
+    return 1;
+  }
+  return 0;
 }
 
 }  // namespace hapticpd::cli

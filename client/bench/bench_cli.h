@@ -55,4 +55,13 @@ std::vector<bench::Benchmark> PrepareBenchmarks(const std::string& command, cons
 /// --models, --frames (default `frames`), --json, --tiny.
 void AddCommonBenchOptions(CLI::App* cmd, const std::shared_ptr<BenchOptions>& o, int frames);
 
+/// What both executables' `app` asks of its command line: one subcommand,
+/// --help-all, and command-line errors as one line on stderr naming
+/// `program`.
+void SetUpApp(CLI::App& app, const std::string& program);
+
+/// Parses the command line and runs the chosen subcommand; every error is one
+/// line on stderr naming `program`. Returns the exit code.
+int RunApp(CLI::App& app, const std::string& program, int argc, char** argv);
+
 }  // namespace hapticpd::cli

@@ -214,27 +214,8 @@ int main(int argc, char** argv) {
       "hapticpd-bench: the benchmarks that compare PD with FCL and Bullet or verify it with "
       "them (peers, accuracy, cold); `hapticpd bench` runs table1 and delay",
       "hapticpd-bench"};
-  app.require_subcommand(1);
-  app.set_help_all_flag("--help-all", "Show help for every subcommand");
-  // Errors are one line on stderr, as in `hapticpd`.
-  app.failure_message([](const CLI::App*, const CLI::Error& e) {
-    return std::string("hapticpd-bench: ") + e.what() + " (run with --help for usage)\n";
-  });
+  hapticpd::cli::SetUpApp(app, "hapticpd-bench");
   hapticpd::cli::RegisterOracleBenches(app);
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  } catch (const hapticpd::cli::CommandError& e) {
-    std::cerr << "hapticpd-bench: " << e.what() << "\n";
-    return 1;
-  } catch (const hapticpd::pd::MeshError& e) {
-    std::cerr << "hapticpd-bench: " << e.what() << "\n";
-    return 1;
-  } catch (const std::exception& e) {
-    std::cerr << "hapticpd-bench: error: " << e.what() << "\n";
-    return 1;
-  }
-  return 0;
+  return hapticpd::cli::RunApp(app, "hapticpd-bench", argc, argv);
 }

@@ -1,6 +1,11 @@
 #include "client/viewer/scene_json.h"
 
+#include <google/protobuf/generated_enum_reflection.h>
+
+#include <cctype>
 #include <cmath>
+#include <cstring>
+#include <string>
 
 #include "proto/wire/scene_file.h"
 
@@ -29,53 +34,20 @@ const char* ModeName(v1::PdMode m) {
   return m == v1::PD_MODE_UNSPECIFIED ? "" : wire::PdModeName(m);
 }
 
-const char* StatusName(v1::ContactStatus s) {
-  switch (s) {
-    case v1::CONTACT_STATUS_NONE:
-      return "none";
-    case v1::CONTACT_STATUS_SEPARATED:
-      return "separated";
-    case v1::CONTACT_STATUS_PENETRATING:
-      return "penetrating";
-    case v1::CONTACT_STATUS_CAP_REACHED:
-      return "cap-reached";
-    case v1::CONTACT_STATUS_FAILED:
-      return "failed";
-    case v1::CONTACT_STATUS_WITHHELD:
-      return "withheld";
-    default:
-      return "";
-  }
-}
-
-const char* FailSafeName(v1::FailSafeState s) {
-  switch (s) {
-    case v1::FAIL_SAFE_STATE_WAITING:
-      return "waiting";
-    case v1::FAIL_SAFE_STATE_RAMPING:
-      return "ramping";
-    case v1::FAIL_SAFE_STATE_OK:
-      return "ok";
-    case v1::FAIL_SAFE_STATE_FADING:
-      return "fading";
-    case v1::FAIL_SAFE_STATE_STALE:
-      return "stale";
-    default:
-      return "";
-  }
-}
-
-const char* SourceName(v1::ContactSource s) {
-  switch (s) {
-    case v1::CONTACT_SOURCE_SERVER:
-      return "server";
-    case v1::CONTACT_SOURCE_LOCAL:
-      return "local";
-    case v1::CONTACT_SOURCE_FADED:
-      return "faded";
-    default:
-      return "";
-  }
+/// The page's name of a proto enum value: its name without the enum's
+/// prefix, in lower case with '-' for '_' (CONTACT_STATUS_CAP_REACHED:
+/// "cap-reached"); "" for the unspecified value and for one this build does
+/// not know.
+template <class E>
+std::string EnumName(E value) {
+  const google::protobuf::EnumDescriptor* d = google::protobuf::GetEnumDescriptor<E>();
+  const google::protobuf::EnumValueDescriptor* v = d->FindValueByNumber(value);
+  if (v == nullptr || v->number() == 0) return "";
+  // The unspecified value (0) names the prefix: CONTACT_STATUS_UNSPECIFIED.
+  const std::string& unspecified = d->FindValueByNumber(0)->name();
+  std::string name = v->name().substr(unspecified.size() - std::strlen("UNSPECIFIED"));
+  for (char& c : name) c = c == '_' ? '-' : static_cast<char>(std::tolower(c));
+  return name;
 }
 
 json MeshInfoJson(const v1::MeshInfo& m) {
@@ -118,7 +90,7 @@ json ProbeJson(const v1::ProbeState& p) {
             {"seq", p.sequence()}};
   // The include_contacts fields; an older server sends none of them.
   if (p.has_torque()) j["torque"] = Vec(p.torque());
-  if (p.status() != v1::CONTACT_STATUS_UNSPECIFIED) j["status"] = StatusName(p.status());
+  if (p.status() != v1::CONTACT_STATUS_UNSPECIFIED) j["status"] = EnumName(p.status());
   if (p.mode() != v1::PD_MODE_UNSPECIFIED) j["mode"] = ModeName(p.mode());
   if (p.has_target_pose()) j["target"] = PoseJson(p.target_pose());
   if (p.rows_size() > 0) {
@@ -158,8 +130,8 @@ json DeviceStatusJson(const v1::DeviceTelemetry& d) {
           {"delay_ms", d.emulated_delay_ms()},
           {"jitter_ms", d.emulated_jitter_ms()},
           {"loss", d.emulated_loss()},
-          {"fail_safe", FailSafeName(d.fail_safe())},
-          {"source", SourceName(d.source())},
+          {"fail_safe", EnumName(d.fail_safe())},
+          {"source", EnumName(d.source())},
           {"ticks_server", d.ticks_server()},
           {"ticks_local", d.ticks_local()},
           {"ticks_faded", d.ticks_faded()},

@@ -20,31 +20,20 @@ namespace {
 
 namespace fs = std::filesystem;
 
-class Folder {
+class Folder : public ScopedTempDir {
  public:
-  Folder() {
-    static int n = 0;
-    path_ = fs::temp_directory_path() /
-            ("hapticpd_idem_" + std::to_string(::getpid()) + "_" + std::to_string(n++));
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-    std::ofstream(path_ / "tokens.json") << R"({"tokens": [
+  Folder() : ScopedTempDir("idem") {
+    fs::create_directories(path());
+    std::ofstream(path() / "tokens.json") << R"({"tokens": [
       {"token": "alice", "roles": {"*": ["admin"]}},
       {"token": "bob", "roles": {"*": ["admin"]}}]})";
   }
-  ~Folder() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
   server::ServerOptions Options(bool durable) const {
     server::ServerOptions o;
-    o.tokens_file = (path_ / "tokens.json").string();
-    if (durable) o.state_dir = (path_ / "state").string();
+    o.tokens_file = (path() / "tokens.json").string();
+    if (durable) o.state_dir = (path() / "state").string();
     return o;
   }
-
- private:
-  fs::path path_;
 };
 
 struct Client {

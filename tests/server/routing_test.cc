@@ -254,25 +254,13 @@ TEST(ShardMapFile, BadLinesAreNamed) {
   }
 }
 
-class Folder {
+class Folder : public ScopedTempDir {
  public:
-  Folder() {
-    static int n = 0;
-    path_ = fs::temp_directory_path() /
-            ("hapticpd_routing_" + std::to_string(::getpid()) + "_" + std::to_string(n++));
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-    std::ofstream(path_ / "shard-map.txt") << "# test map\nlab- s1\nlab-b s2\nkeep s1\n";
+  Folder() : ScopedTempDir("routing") {
+    fs::create_directories(path());
+    std::ofstream(path() / "shard-map.txt") << "# test map\nlab- s1\nlab-b s2\nkeep s1\n";
   }
-  ~Folder() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string Map() const { return (path_ / "shard-map.txt").string(); }
-  fs::path path() const { return path_; }
-
- private:
-  fs::path path_;
+  std::string Map() const { return (path() / "shard-map.txt").string(); }
 };
 
 server::ServerOptions Sharded(const Folder& f, const std::string& shard) {

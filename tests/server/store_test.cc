@@ -24,23 +24,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-class TempDir {
+class TempDir : public ScopedTempDir {
  public:
-  TempDir() {
-    static int n = 0;
-    path_ = fs::temp_directory_path() /
-            ("hapticpd_store_" + std::to_string(::getpid()) + "_" + std::to_string(n++));
-    fs::remove_all(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  const fs::path& path() const { return path_; }
-  fs::path db() const { return path_ / "scenes.db"; }
-
- private:
-  fs::path path_;
+  TempDir() : ScopedTempDir("store") {}
+  fs::path db() const { return path() / "scenes.db"; }
 };
 
 std::string Slurp(const fs::path& p) {
