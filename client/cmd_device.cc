@@ -220,9 +220,9 @@ nlohmann::json DeviceJson(const DeviceOptions& o, const device::ServoLoop& loop,
 
 /// The run's statistics as text.
 void PrintDevice(const DeviceOptions& o, const nlohmann::json& j, const device::ServoLoop& loop,
-                 const client::Session& session, const device::RecordingDevice* rec) {
+                 const client::Session& session, const client::SessionStats& ss,
+                 const device::RecordingDevice* rec) {
   const device::ServoStats& s = loop.stats();
-  const client::SessionStats ss = session.stats();
   const double elapsed = j["elapsed_s"].get<double>();
   std::printf(
       "device: %.1f s on scene '%s' (%s), session %s\n"
@@ -335,7 +335,7 @@ void RunDevice(const DeviceOptions& o) {
     std::cout << j.dump() << std::endl;
     return;
   }
-  PrintDevice(o, j, loop, session, rec.get());
+  PrintDevice(o, j, loop, session, ss, rec.get());
 }
 
 }  // namespace
