@@ -1,6 +1,7 @@
 #include "pd/pdg.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -662,29 +663,50 @@ bool ReprojectQpAnswer(PdgContext& c, const Best& best, const Pose& X_star, Pose
 // the best contact's for up to two retries. Returns kPenetratingSolved at a
 // local optimum, kPenetratingCapReached at the iteration cap or the work
 // budget.
-PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations) {
+// The work budget of one query's iterations (PenetrationRequest::
+// pdg_iteration_budget): box and triangle pair tests of its traversals (PDt's
+// inside it included) since the first iteration began, the turn starts'
+// sweeps and iterations included.
+struct WorkBudget {
+  std::uint64_t limit = 0;  // 0: none
+  std::uint64_t start = 0, last = 0, costliest = 0;
+  bool started = false;
+};
+
+std::uint64_t Work(const PdgContext& c) {
+  return c.data.scratch.node_tests + c.data.scratch.triangle_tests + c.data.pdt.scratch.node_tests +
+         c.data.pdt.scratch.triangle_tests;
+}
+
+// Whether the work so far plus the costliest iteration so far fits in the
+// budget (the next iteration would likely not overrun it).
+bool Fits(const PdgContext& c, const WorkBudget& b) {
+  return b.limit == 0 || !b.started || Work(c) - b.start + b.costliest <= b.limit;
+}
+
+// Whether another iteration may start: it fits, or it is the query's first.
+bool MayIterate(const PdgContext& c, WorkBudget* b) {
+  const std::uint64_t now = Work(c);
+  if (!b->started) {
+    b->started = true;
+    b->start = b->last = now;
+    return true;
+  }
+  b->costliest = std::max(b->costliest, now - b->last);
+  b->last = now;
+  return Fits(c, *b);
+}
+
+PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations, WorkBudget* budget) {
   PdStatus status = PdStatus::kPenetratingCapReached;
   bool have_extra = false;
   Pose X_extra;
   Vec6 z_extra = Vec6::Zero();
   int retries = 0;
-  // The work budget: box and triangle pair tests of this query's traversals
-  // (PDt's inside it included) since the iterations began.
-  auto work = [&] {
-    return c.data.scratch.node_tests + c.data.scratch.triangle_tests +
-           c.data.pdt.scratch.node_tests + c.data.pdt.scratch.triangle_tests;
-  };
-  const std::uint64_t work_start = work();
-  std::uint64_t work_it = work_start, costliest = 0;
+  const int first = *iterations;
   for (int it = 0; it < c.request.max_iterations; ++it) {
-    const std::uint64_t now = work();
-    costliest = std::max(costliest, now - work_it);
-    work_it = now;
-    if (c.request.pdg_iteration_budget > 0 &&
-        now - work_start + costliest > c.request.pdg_iteration_budget) {
-      break;  // the next iteration would likely overrun: cap reached
-    }
-    *iterations = it + 1;
+    if (!MayIterate(c, budget)) break;  // the next iteration would likely overrun: cap reached
+    *iterations = first + it + 1;
     if (best->sigma <= 0) {
       status = PdStatus::kPenetratingSolved;
       break;
@@ -722,6 +744,68 @@ PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations) {
       break;
     }
     AcceptSwept(c, X_new, best);
+  }
+  return status;
+}
+
+// Cold PDg: starts that turn as well as slide. PDt's answer keeps the query
+// rotation, and the contact-space iteration from it is local: where a turn
+// about the centre of mass frees the probe far more cheaply (a probe wedged
+// across a cavity, a handle through a rim) the iteration never gets there.
+// Each candidate spends a fraction of the best sigma so far on a turn about
+// one of the probe's principal axes or diagonals (kTurnSteps, largest
+// fractions first) and, at the larger fractions, the rest on a slide along
+// the best answer's translation. A candidate that is free is out-projected
+// towards the query pose (its sigma only falls on the way), so it beats the
+// best answer, and the iteration goes on from it. Most candidates collide
+// and cost one early-out collision test.
+struct TurnStep {
+  double fraction;  // of the best sigma spent on the turn
+  bool slide;       // the rest on a slide along the best translation
+};
+constexpr std::array<TurnStep, 7> kTurnSteps{{{0.9, true},
+                                              {0.5, true},
+                                              {0.2, true},
+                                              {0.05, false},
+                                              {0.01, false},
+                                              {0.002, false},
+                                              {0.0005, false}}};
+constexpr int kTurnAxes = 14;  // 3 principal axes both ways, 8 diagonals
+static_assert(kPdgColdTurnStarts == static_cast<int>(kTurnSteps.size()) * kTurnAxes);
+
+// The k-th turn axis in the probe's principal frame (z's rotation part).
+Vec3 TurnAxis(int k) {
+  if (k < 6) return (k % 2 == 0 ? 1.0 : -1.0) * Vec3::Unit(k / 2);
+  k -= 6;
+  return Vec3(k & 1 ? -1 : 1, k & 2 ? -1 : 1, k & 4 ? -1 : 1).normalized();
+}
+
+PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budget,
+                    PdStatus status) {
+  // A turn of at most about 29 degrees (|v| = sin(theta / 2)): the
+  // linearised contact space is far from right beyond.
+  constexpr double kMaxV = 0.25;
+  int tried = 0;
+  for (const TurnStep& step : kTurnSteps) {
+    for (int k = 0; k < kTurnAxes; ++k) {
+      if (tried++ >= c.request.pdg_cold_turn_starts) return status;
+      if (!Fits(c, *budget)) return PdStatus::kPenetratingCapReached;
+      const Vec3 axis = TurnAxis(k);
+      const double sigma0 = best->sigma * (1 - 1e-3);
+      const double weight = axis.cwiseProduct(axis).dot(c.metric.head<3>());
+      const double v = std::min(kMaxV, std::sqrt(step.fraction * sigma0 / weight));
+      Vec6 z = Vec6::Zero();
+      z.head<3>() = v * axis;
+      const Vec3 t = best->z.tail<3>();
+      if (step.slide && t.norm() > 0) {
+        z.tail<3>() = t.normalized() * std::sqrt(std::max(0.0, sigma0 - weight * v * v));
+      }
+      Pose X_contact;
+      if (OutProjectFrom(c, At(c, z), &X_contact) != Sweep::kHit) continue;
+      if (Sigma(c, Z(c, X_contact)) >= best->sigma) continue;
+      AcceptSwept(c, X_contact, best);
+      status = IterateContactSpace(c, best, iterations, budget);
+    }
   }
   return status;
 }
@@ -805,6 +889,10 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
   };
   Pose X_coh;
   double cached_sigma = 0;
+  // Cold: nothing cached to start from (a one-shot query, the first of a
+  // run, or coherence off). A coherent run whose cached poses all collide
+  // now is not: its frames keep their time for the servo rate.
+  const bool cold = !request.use_coherence || data->coherence_size() == 0;
   if (CoherentStart(c, &X_coh, &cached_sigma)) AcceptSwept(c, X_coh, &best);
   // A coherent start much deeper than the answer it came from has lost that
   // answer's basin (the probe jumped, or the cached contact's way out closed
@@ -832,7 +920,12 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
     return;
   }
 
-  const PdStatus status = IterateContactSpace(c, &best, &result->iterations);
+  WorkBudget budget;
+  budget.limit = request.pdg_iteration_budget;
+  PdStatus status = IterateContactSpace(c, &best, &result->iterations, &budget);
+  if (cold && status != PdStatus::kPenetratingCapReached) {
+    status = TurnStarts(c, &best, &result->iterations, &budget, status);
+  }
 
   // Verified answer: a contact along its own motion; else the PDt answer.
   if (!Polish(c, &best)) {

@@ -47,6 +47,8 @@ inline constexpr int kColdStartDirections = 13;
 inline constexpr int kColdSearchDirections = kColdStartDirections + 128;
 /// The most escape directions a cold search may be asked for.
 inline constexpr int kMaxColdSearchDirections = 4096;
+/// PDg's cold turn starts: 7 turn sizes times 14 axes.
+inline constexpr int kPdgColdTurnStarts = 98;
 
 struct PenetrationRequest {
   /// Contact tolerance as a fraction of the scene body's size (bounding-box
@@ -64,6 +66,7 @@ struct PenetrationRequest {
   /// QueryScratch; each about 0.07 us on the benchmark machines). An
   /// iteration starts only while the work spent in the iterations plus the
   /// costliest iteration so far fits in the budget; the first always runs.
+  /// A cold query's turn starts (pdg_cold_turn_starts) count against it.
   /// When it stops the query, the best verified contact so far is returned
   /// with kPenetratingCapReached, and motion coherence carries the
   /// optimisation on at the next query. It bounds the time of the deep
@@ -105,6 +108,16 @@ struct PenetrationRequest {
   /// sqrt(sigma) <= |PDt| on every query at the price of a PDt; without
   /// coherence (use_coherence false) it always holds.
   bool pdg_always_pdt_start = false;
+  /// PDg only, cold queries (nothing in the coherence cache: a one-shot
+  /// query, the first of a run, or use_coherence false): how many turn
+  /// starts follow the iteration from PDt's answer once it has converged, at
+  /// most kPdgColdTurnStarts (all, the default); 0: none. Each turns the
+  /// probe about one of its principal axes or diagonals by part of the best
+  /// sigma so far and, where that is free, out-projects and iterates from
+  /// there: it finds the turns that free a wedged probe cheaply, which the
+  /// local iteration from PDt's translation does not. Most cost one
+  /// early-out collision test. They count against pdg_iteration_budget.
+  int pdg_cold_turn_starts = kPdgColdTurnStarts;
   /// PDg only: the probe's principal moments of inertia about its centre of
   /// mass divided by its mass (m^2), along the body frame's axes
   /// (MassProperties::X_MB), e.g. (I, I, I) / m for an isotropic override of

@@ -81,6 +81,7 @@ struct ColdCmdOptions {
   std::string write_reference;
   std::string poses_from;
   int cold_directions = pd::PenetrationRequest{}.cold_start_directions;
+  int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts;
   int poses = 16;
   std::uint64_t seed = 1;
 };
@@ -93,6 +94,7 @@ void RunColdCmd(const ColdCmdOptions& o) {
   c.seed = o.seed;
   c.poses_from = o.poses_from;
   c.cold_directions = o.cold_directions;
+  c.turn_starts = o.turn_starts;
   MakeOutputFolder("cold", "--out", o.out);
   const std::filesystem::path out(o.out);
   std::ostream& notes = o.json ? std::cerr : std::cout;
@@ -108,6 +110,7 @@ void RunColdCmd(const ColdCmdOptions& o) {
   if (o.models_given) command += " --models " + o.models;
   if (!o.poses_from.empty()) command += " --poses-from " + o.poses_from;
   command += " --cold-directions " + std::to_string(o.cold_directions);
+  command += " --turn-starts " + std::to_string(o.turn_starts);
   const std::string date = UtcNow();
   const std::filesystem::path svg = out / "cold.svg";
   try {
@@ -201,6 +204,11 @@ void RegisterOracleBenches(CLI::App& app) {
                     "(PenetrationRequest::cold_start_directions: 1 the centroid direction only, "
                     "13 the fixed ones, more adds a sphere lattice)")
         ->check(CLI::Range(1, pd::kMaxColdSearchDirections))
+        ->capture_default_str();
+    cmd->add_option("--turn-starts", o->turn_starts,
+                    "Turn starts of each cold PDg query (PenetrationRequest::pdg_cold_turn_starts: "
+                    "0 none)")
+        ->check(CLI::Range(0, pd::kPdgColdTurnStarts))
         ->capture_default_str();
     cmd->callback([o] { RunColdCmd(*o); });
   }

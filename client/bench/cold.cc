@@ -288,7 +288,7 @@ double RatioFromReferenceBasin(const ColdPair& pair, ColdVerifier& verify, const
 
 std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
                                        const std::vector<ColdPose>& poses, bool diagnose,
-                                       int cold_directions) {
+                                       int cold_directions, int turn_starts) {
   std::vector<ColdAnswer> out;
   std::map<std::string, const ColdPair*> by_name;
   for (const ColdPair& p : pairs) by_name[p.name] = &p;
@@ -296,6 +296,7 @@ std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
   pd::PenetrationRequest cold;
   cold.use_coherence = false;
   cold.cold_start_directions = cold_directions;
+  cold.pdg_cold_turn_starts = turn_starts;
   pd::PenetrationRequest cold_unbudgeted = cold;
   cold_unbudgeted.pdg_iteration_budget = 0;
   pd::PdQueryData pdt_data;
@@ -414,9 +415,10 @@ ColdReport RunCold(const ColdOptions& o, std::ostream* log) {
     }
     report.notes.push_back("poses and references read from " + o.poses_from);
   }
-  report.answers = RunColdQueries(pairs, report.poses, true, o.cold_directions);
+  report.answers = RunColdQueries(pairs, report.poses, true, o.cold_directions, o.turn_starts);
   report.notes.push_back(
       fmt::format("cold search escape directions per query: {}", o.cold_directions));
+  report.notes.push_back(fmt::format("PDg turn starts per cold query: {}", o.turn_starts));
   report.summary = SummarizeCold(report.answers);
   return report;
 }

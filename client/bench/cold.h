@@ -84,6 +84,8 @@ struct ColdOptions {
   std::string poses_from;
   /// PenetrationRequest::cold_start_directions of every query.
   int cold_directions = pd::PenetrationRequest{}.cold_start_directions;
+  /// PenetrationRequest::pdg_cold_turn_starts of every PDg query.
+  int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts;
 };
 
 /// Draws `options.poses` colliding poses per pair (a uniformly random
@@ -148,11 +150,13 @@ struct ColdAnswer {
 /// The cold queries of each pose: PDt, PDg without the work budget (as the
 /// one-shot command), PDg with the default budget. Each on its own query
 /// data, coherence off, with `cold_directions` escape directions
-/// (PenetrationRequest::cold_start_directions); time is the wall clock of the
-/// call.
+/// (PenetrationRequest::cold_start_directions) and `turn_starts` PDg turn
+/// starts (PenetrationRequest::pdg_cold_turn_starts); time is the wall clock
+/// of the call.
 std::vector<ColdAnswer> RunColdQueries(
     const std::vector<ColdPair>& pairs, const std::vector<ColdPose>& poses, bool diagnose,
-    int cold_directions = pd::PenetrationRequest{}.cold_start_directions);
+    int cold_directions = pd::PenetrationRequest{}.cold_start_directions,
+    int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts);
 
 struct ColdSummary {
   ColdKind kind = ColdKind::kPdt;

@@ -7,14 +7,17 @@
 // Each answer is verified with FCL here, and the ratio distribution must
 // meet the thresholds the cold start meets today (tests/bench/README.md,
 // "Cold queries"); they are to be tightened as the cold start improves.
-// Run twice: with the default cold search (PenetrationRequest's
-// cold_start_directions, kColdSearchDirections) and with its 13 fixed
-// directions only, the weaker search, which fails the default thresholds.
+// Run three ways: with the defaults; with the cold search's 13 fixed
+// directions only (the weaker PDt search, which fails the default PDt
+// thresholds); and without PDg's turn starts (which fails the default PDg
+// thresholds: the test checks that it does).
 // Presets: every preset (pd_tests).
 #include <gtest/gtest.h>
 
 #include <fstream>
+#include <map>
 #include <string>
+#include <utility>
 
 #include "client/bench/cold.h"
 
@@ -29,14 +32,14 @@ struct ColdThresholds {
 // What the cold search meets today on the 42 stored poses (measured values
 // with the ratios rounded up): lower these as it improves.
 constexpr ColdThresholds kColdPdt{1.001, 1.002, 1.03, 2, 0};
-constexpr ColdThresholds kColdPdg{1.001, 1.24, 20.9, 11, 4};
-constexpr ColdThresholds kColdPdgBudget{1.001, 1.24, 20.9, 15, 5};
+constexpr ColdThresholds kColdPdg{1.001, 1.09, 20.9, 8, 2};
+constexpr ColdThresholds kColdPdgBudget{1.001, 1.17, 20.9, 12, 4};
 // With the 13 fixed escape directions only (no sphere lattice). These fail
 // the thresholds above: PDt p95 1.015, max 1.38, 3 above 1.01, 1 above 1.10.
 constexpr int kFixedDirections = pd::kColdStartDirections;
 constexpr ColdThresholds kFixedPdt{1.001, 1.015, 1.38, 3, 1};
-constexpr ColdThresholds kFixedPdg{1.001, 1.24, 20.9, 11, 4};
-constexpr ColdThresholds kFixedPdgBudget{1.001, 1.24, 20.9, 15, 5};
+constexpr ColdThresholds kFixedPdg{1.001, 1.17, 20.9, 8, 3};
+constexpr ColdThresholds kFixedPdgBudget{1.001, 1.17, 20.9, 12, 4};
 
 class ColdAccuracy : public ::testing::Test {
  protected:
@@ -45,21 +48,32 @@ class ColdAccuracy : public ::testing::Test {
     ASSERT_TRUE(in) << "tests/data/cold/procedural.json is missing";
     poses_ = new std::vector<ColdPose>(ColdPosesFromJson(nlohmann::json::parse(in)));
     pairs_ = new std::vector<ColdPair>(BuildColdPairs("", true, nullptr));
-    answers_ = new std::vector<ColdAnswer>(RunColdQueries(*pairs_, *poses_, false));
-    fixed_answers_ =
-        new std::vector<ColdAnswer>(RunColdQueries(*pairs_, *poses_, false, kFixedDirections));
   }
   static void TearDownTestSuite() {
-    delete fixed_answers_;
-    delete answers_;
+    for (auto& [key, answers] : answers_) delete answers;
+    answers_.clear();
     delete pairs_;
     delete poses_;
+  }
+
+  /// The answers on the stored poses with `directions` escape directions and
+  /// `turn_starts` PDg turn starts, computed on first use (each test runs in
+  /// its own process and needs one or two of the three sets).
+  static const std::vector<ColdAnswer>* Answers(
+      int directions = pd::PenetrationRequest{}.cold_start_directions,
+      int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts) {
+    std::vector<ColdAnswer>*& a = answers_[{directions, turn_starts}];
+    if (a == nullptr) {
+      a = new std::vector<ColdAnswer>(
+          RunColdQueries(*pairs_, *poses_, false, directions, turn_starts));
+    }
+    return a;
   }
 
   /// Every answer of `kind` is a verified contact, and the distribution of
   /// answer / reference meets `t`.
   static void ExpectKind(ColdKind kind, const ColdThresholds& t,
-                         const std::vector<ColdAnswer>* answers = answers_) {
+                         const std::vector<ColdAnswer>* answers = Answers()) {
     ASSERT_NE(answers, nullptr);
     ASSERT_FALSE(answers->empty());
     for (const ColdAnswer& a : *answers) {
@@ -86,14 +100,12 @@ class ColdAccuracy : public ::testing::Test {
 
   static std::vector<ColdPose>* poses_;
   static std::vector<ColdPair>* pairs_;
-  static std::vector<ColdAnswer>* answers_;
-  static std::vector<ColdAnswer>* fixed_answers_;
+  static std::map<std::pair<int, int>, std::vector<ColdAnswer>*> answers_;
 };
 
 std::vector<ColdPose>* ColdAccuracy::poses_ = nullptr;
 std::vector<ColdPair>* ColdAccuracy::pairs_ = nullptr;
-std::vector<ColdAnswer>* ColdAccuracy::answers_ = nullptr;
-std::vector<ColdAnswer>* ColdAccuracy::fixed_answers_ = nullptr;
+std::map<std::pair<int, int>, std::vector<ColdAnswer>*> ColdAccuracy::answers_;
 
 TEST_F(ColdAccuracy, StoredSetCoversEveryProceduralPair) {
   ASSERT_NE(poses_, nullptr);
@@ -108,13 +120,30 @@ TEST_F(ColdAccuracy, Pdt) { ExpectKind(ColdKind::kPdt, kColdPdt); }
 TEST_F(ColdAccuracy, PdgWithoutBudget) { ExpectKind(ColdKind::kPdg, kColdPdg); }
 TEST_F(ColdAccuracy, PdgWithBudget) { ExpectKind(ColdKind::kPdgBudget, kColdPdgBudget); }
 TEST_F(ColdAccuracy, PdtFixedDirectionsOnly) {
-  ExpectKind(ColdKind::kPdt, kFixedPdt, fixed_answers_);
+  ExpectKind(ColdKind::kPdt, kFixedPdt, Answers(kFixedDirections));
 }
 TEST_F(ColdAccuracy, PdgWithoutBudgetFixedDirectionsOnly) {
-  ExpectKind(ColdKind::kPdg, kFixedPdg, fixed_answers_);
+  ExpectKind(ColdKind::kPdg, kFixedPdg, Answers(kFixedDirections));
 }
 TEST_F(ColdAccuracy, PdgWithBudgetFixedDirectionsOnly) {
-  ExpectKind(ColdKind::kPdgBudget, kFixedPdgBudget, fixed_answers_);
+  ExpectKind(ColdKind::kPdgBudget, kFixedPdgBudget, Answers(kFixedDirections));
+}
+
+// The turn starts are what meet the PDg thresholds: without them every
+// answer is still a verified contact, but more are far above the bound.
+TEST_F(ColdAccuracy, PdgWithoutTurnStartsMissesTheThresholds) {
+  const std::vector<ColdAnswer>* turnless = Answers(pd::kColdSearchDirections, 0);
+  for (const auto& [kind, t] :
+       {std::pair{ColdKind::kPdg, kColdPdg}, std::pair{ColdKind::kPdgBudget, kColdPdgBudget}}) {
+    for (const ColdSummary& s : SummarizeCold(*turnless)) {
+      if (s.kind != kind) continue;
+      SCOPED_TRACE(ToString(kind));
+      EXPECT_EQ(s.failed, 0);
+      EXPECT_EQ(s.unverified, 0);
+      EXPECT_GT(s.above_1_01, t.above_1_01);
+      EXPECT_GT(s.above_1_10, t.above_1_10);
+    }
+  }
 }
 
 }  // namespace
