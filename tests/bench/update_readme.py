@@ -753,7 +753,8 @@ def render_hop(root):
                       f"×{float(rows['hop_ratio_p50']['frames']):.2f}",
                       f"×{float(rows['hop_ratio_p99']['frames']):.2f}"])
     return "\n".join([
-        conditions(d), "",
+        conditions(d, "", f"`tests/bench/scale_hop.sh hop --frames {HOP_FRAMES} --blocks "
+                          f"{HOP_BLOCKS} --mode M` for M = pdt, none"), "",
         table(["PD mode", "path", "p50 µs", "p99 µs", "p99.9 µs", "PD p50 µs", "round trips/s"],
               body, "llrrrrr"), "",
         table(["PD mode", "hop adds p50", "hop adds p99", "ratio p50", "ratio p99"], added)])
@@ -774,7 +775,11 @@ def render_capacity(root):
                      f"{min(rates):.1f}" if rates else "—",
                      f"{max(p99s) / 1000:.2f}" if p99s else "—", verdict])
     return "\n".join([
-        conditions(d, f"{CAPACITY_SECONDS} s per step"), "",
+        conditions(d, "", "`tests/bench/scale_hop.sh capacity N "
+                          f"{CAPACITY_SECONDS}` for N = "
+                          + ", ".join(str(n) for p, n in CAPACITY if p == "via")
+                          + " through HAProxy, and with `DIRECT=1` for N = "
+                          + ", ".join(str(n) for p, n in CAPACITY if p == "direct")), "",
         table(["N", "path", "worst updates/s", "worst p99 ms", "result"], body, "rlrrl")])
 
 
@@ -867,9 +872,12 @@ def render_goals(root):
         rows.append(["cold PDg: ≥ 95 % within 1 %, p50 ≤ 2 ms",
                      f"{100 * gw:.1f} %, {num(g['p50_us'])} µs",
                      "[Cold queries](#cold-queries)", met(gw >= 0.95 and g["p50_us"] <= 2000)])
+    loads = sorted(float(read_json(m)["load_average"].split()[0])
+                   for m in root.glob("*/meta.json"))
+    span = f"{loads[0]:.2f}–{loads[-1]:.2f}" if loads else "?"
     return "\n".join([
-        "Judged by this script from the newest run of each benchmark below (each table says "
-        "its conditions; the viewer's goals are in [Viewer](#viewer)):", "",
+        f"Judged from the newest run of each benchmark below (1-minute load averages at "
+        f"their starts {span}; each table gives its own):", "",
         table(["goal", "measured", "where", "met?"], rows, "llll")])
 
 
