@@ -423,7 +423,10 @@ def render_callgrind(root):
         body.append(cells)
     return "\n".join([
         conditions(d, "millions of instructions per PD call, p99 / max, and the frames over "
-                      "9 M; the same on any machine"), "",
+                      "9 M; the same on any machine",
+                   "`/usr/bin/python3 tests/bench/callgrind_frames.py "
+                   f"{B}/tests/bench/bench_Q BENCHMARK --over 9` for Q = pdt, pdg and each "
+                   "benchmark"), "",
         table(["benchmark", "PDt", "PDg", "PDg without budget"], body)])
 
 
@@ -995,7 +998,8 @@ def record(root, dest):
     keep = 40  # rows per benchmark (or label) of a per-frame CSV
     for src in sorted(root.rglob("*")):
         rel = src.relative_to(root)
-        if src.is_dir() or rel.parts[0] == "cg" or src.name == "cold16.json":
+        if (src.is_dir() or "cg" in rel.parts or src.name == "cold16.json"
+                or src.suffix == ".svg"):
             continue
         out = dest / rel
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -1018,7 +1022,7 @@ def record(root, dest):
                 for a in j["answers"]:
                     k = (a["pair"], a["kind"])
                     seen[k] = seen.get(k, 0) + 1
-                    if seen[k] <= 2:
+                    if seen[k] <= 1:
                         answers.append(a)
                 j["answers"] = answers
             out.write_text(json.dumps(j, indent=1) + "\n")
