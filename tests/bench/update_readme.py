@@ -8,7 +8,8 @@ after another (never two at once), each writing its --json/--csv output into
 BUILD/bench-readme/NAME/ with a meta.json (commands, load average at the
 start, seconds taken); the tables are then rendered from those files. Tables
 derived from other benchmarks' outputs (tail, goals) are re-rendered from the
-newest outputs present.
+newest outputs present. A benchmark that fails keeps its last outputs (and
+so its table); the script names it and exits 1 after writing the others.
 
     /usr/bin/python3 tests/bench/update_readme.py                  # everything (~35 min)
     /usr/bin/python3 tests/bench/update_readme.py --only pdt pdg   # these, then re-render
@@ -135,6 +136,10 @@ def models_note(d):
 # Running
 
 
+class Failed(Exception):
+    """A benchmark could not run or failed: its table keeps its last outputs."""
+
+
 class Runner:
     """Runs one table's commands in order, writing stdout to files in `out`."""
 
@@ -148,7 +153,7 @@ class Runner:
     def exe(self, rel):
         p = self.build / rel
         if not p.is_file():
-            sys.exit(f"update_readme: {p}: not built (cmake --build --preset release)")
+            raise Failed(f"{p}: not built (cmake --build --preset release)")
         return str(p)
 
     def run(self, argv, stdout_name, shown=None, env=None):
@@ -159,7 +164,7 @@ class Runner:
         with open(self.out / stdout_name, "w") as f:
             r = subprocess.run(argv, cwd=SOURCE_DIR, stdout=f, env=env)
         if r.returncode != 0:
-            sys.exit(f"update_readme: `{shown}` failed (exit {r.returncode}); "
+            raise Failed(f"`{shown}` failed (exit {r.returncode}); "
                      f"its output is in {self.out / stdout_name}")
 
     def finish(self):
@@ -245,7 +250,7 @@ COLD_DIRECTIONS = [1, 13, 41, 141, 269]
 def run_cold_directions(r):
     poses = r.out.parent / "cold" / "cold16.json"
     if not poses.is_file():
-        sys.exit(f"update_readme: cold-directions needs {poses}: run --only cold first")
+        raise Failed(f"cold-directions needs {poses}: run --only cold first")
     for n in COLD_DIRECTIONS:
         r.run([r.exe("hapticpd-bench"), "cold", "--poses-from", str(poses), "--cold-directions",
                str(n), "--out", str(r.out), "--json"], f"directions{n}.json",
@@ -1065,6 +1070,7 @@ def main():
     readme = Path(args.readme)
     text = readme.read_text(encoding="utf-8")
     _, problems = find_blocks(text)
+    failures = []
 
     if not args.source and not args.check:
         if problems:
@@ -1076,10 +1082,22 @@ def main():
             if run is None:
                 continue
             out = root / name
-            shutil.rmtree(out, ignore_errors=True)
-            r = Runner(build, out)
-            run(r)
-            r.finish()
+            failed_out = root / (name + ".failed")
+            shutil.rmtree(failed_out, ignore_errors=True)
+            if out.exists():
+                out.rename(failed_out)  # the last good outputs, back in place on a failure
+            try:
+                r = Runner(build, out)
+                run(r)
+                r.finish()
+                shutil.rmtree(failed_out, ignore_errors=True)
+            except Failed as e:
+                failures.append(f"table '{name}': {e}")
+                print(f"update_readme: {failures[-1]}; its table keeps its last outputs",
+                      file=sys.stderr)
+                shutil.rmtree(out, ignore_errors=True)
+                if failed_out.exists():
+                    failed_out.rename(out)
         print(f"update_readme: benchmarks took {time.monotonic() - t0:.0f} s", file=sys.stderr)
 
     rendered = {}
@@ -1109,6 +1127,9 @@ def main():
     if new != text:
         readme.write_text(new, encoding="utf-8")
     print(f"update_readme: wrote {', '.join(rendered)} into {readme}")
+    if failures:
+        print("update_readme: " + "\n  ".join(["these benchmarks failed:"] + failures))
+        return 1
     return 0
 
 
