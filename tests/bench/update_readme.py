@@ -125,7 +125,7 @@ def conditions(d, extra="", command=None):
 def models_note(d):
     """Which models a run used, from the notes it printed."""
     text = ""
-    for p in sorted(d.glob("*.txt")):
+    for p in sorted(d.glob("*.txt")) + sorted(d.glob("*.log")):
         text += p.read_text(errors="replace")
     if re.search(r"stand-in|not found|procedural torus knot instead", text):
         return "procedural stand-ins for missing shared models"
@@ -161,10 +161,18 @@ class Runner:
         shown = shown or " ".join(argv)
         self.commands.append(shown)
         print(f"update_readme: {shown}", file=sys.stderr, flush=True)
-        with open(self.out / stdout_name, "w") as f:
-            r = subprocess.run(argv, cwd=SOURCE_DIR, stdout=f, env=env)
-        if r.returncode != 0:
-            raise Failed(f"`{shown}` failed (exit {r.returncode}); "
+        # stderr (progress, notes such as the models used) to the terminal
+        # and to a .log file beside the output.
+        log_name = Path(stdout_name).stem + ".log"
+        with open(self.out / stdout_name, "w") as f, open(self.out / log_name, "w") as log:
+            p = subprocess.Popen(argv, cwd=SOURCE_DIR, stdout=f, stderr=subprocess.PIPE,
+                                 env=env, text=True, errors="replace")
+            for line in p.stderr:
+                sys.stderr.write(line)
+                log.write(line)
+            returncode = p.wait()
+        if returncode != 0:
+            raise Failed(f"`{shown}` failed (exit {returncode}); "
                      f"its output is in {self.out / stdout_name}")
 
     def finish(self):
@@ -453,7 +461,7 @@ def render_table1(root):
         conditions(d, f"{frames} frames per benchmark; "
                       + ("procedural stand-ins" if stand_in else "the shared models")), "",
         table(["benchmark", "mode", "triangles", "p50 µs", "p99 µs", "max µs", "contacts",
-               "iterations", "seed ms", "seed contacts", "seed / p50"], body)])
+               "iterations", "seed ms", "seed contacts", "seed / p50"], body, "llrrrrrrrrr")])
 
 
 PEER_NAMES = {
@@ -485,7 +493,7 @@ def render_peers(root):
         last = r["benchmark"]
     frames = rows[0]["frames"] if rows else "?"
     return "\n".join([
-        conditions(d, f"the first {frames} frames of each trajectory"), "",
+        conditions(d, f"the first {frames} frames of each trajectory; {models_note(d)}"), "",
         table(["benchmark", "method", "p50 µs", "p99 µs", "× PDt p50",
                "depth error median / p90", "signed median"], body, "llrrrrr")])
 
@@ -523,7 +531,8 @@ def render_accuracy(root):
                 f"unverified" for p in pts if p["failed"] or p["unverified"]]
     c, s = j["convex_check"], j["sampling_bound"]
     return "\n".join([
-        conditions(d, "a row per sweep, its settings' figures in the same order"), "",
+        conditions(d, f"{models_note(d)}; a row per sweep, its settings' figures in the same "
+                      "order"), "",
         table(["benchmark", "mode", "sweep", "settings", "poses", "p50 µs", "mean error",
                "median error", "max error"], body, "llllrrrrr"), "",
         f"Bullet's GJK/EPA against the exact separating axes: max relative difference "
@@ -704,7 +713,10 @@ def render_cold(root):
     m = meta(d)
     return "\n".join([
         f"Measured by `{m['commands'][0]}` (load average at start {j['load_average']}, "
-        f"{m['cores']} cores; {n} poses; {m.get('seconds', 0):.0f} s with the references):", "",
+        f"{m['cores']} cores; {n} poses; {m.get('seconds', 0):.0f} s with the references; "
+        + ("shared models missing: those pairs left out" if any(
+            x.startswith("NOTE: shared models") for x in j["notes"])
+           else "the shared models") + "):", "",
         table(COLD_HEAD, cold_summary_rows(j)), "",
         f"PDt within 1 % of the reference on {100 * within:.1f} % of the poses.", "",
         "Per pair, answers above 1.01× / above 1.10×:", "",
@@ -1031,7 +1043,7 @@ def record(root, dest):
                         answers.append(a)
                 j["answers"] = answers
             out.write_text(json.dumps(j, indent=1) + "\n")
-        elif src.suffix == ".txt":
+        elif src.suffix in (".txt", ".log"):
             out.write_text("\n".join(src.read_text(errors="replace").split("\n")[:40]) + "\n")
         else:
             shutil.copyfile(src, out)
