@@ -1047,6 +1047,9 @@ def record(root, dest):
             out.write_text("\n".join(src.read_text(errors="replace").split("\n")[:40]) + "\n")
         else:
             shutil.copyfile(src, out)
+    for f in dest.rglob("*"):  # no paths of this machine in the samples
+        if f.is_file():
+            f.write_text(f.read_text(errors="replace").replace(f"{SOURCE_DIR}/", ""))
     print(f"update_readme: recorded {root} into {dest}")
 
 
