@@ -5,7 +5,10 @@
 // per tick. Goals (issue 9): an undeclared effect costs 0 (a scene runs only
 // its stages), the full set adds <= 5 us per tick.
 //
-//   bench_effects [--ticks N]
+//   bench_effects [--ticks N] [--csv FILE]
+//
+// --csv FILE also writes one row per scene (tests/bench/update_readme.py
+// renders the README's table from it).
 //
 // The IR is refreshed every tick (a server answering at 1 kHz): four contact
 // rows 1 mm deep under the proxy, so every contact effect is active.
@@ -14,6 +17,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <fstream>
 #include <string>
 #include <vector>
 
@@ -127,8 +131,10 @@ Result Measure(EffectSet set, int ticks) {
 
 int main(int argc, char** argv) {
   int ticks = 100000;
+  std::string csv;
   for (int i = 1; i + 1 < argc; i += 2) {
     if (!std::strcmp(argv[i], "--ticks")) ticks = std::max(1000, std::atoi(argv[i + 1]));
+    if (!std::strcmp(argv[i], "--csv")) csv = argv[i + 1];
   }
   const EffectSet contact = EffectSet().With(Effect::kContact);
   struct Config {
@@ -159,6 +165,16 @@ int main(int argc, char** argv) {
     std::printf("%-28s %-58s %9.0f %9.0f %9.1f %9.1f\n", c.name,
                 EffectPipeline(c.set).description().c_str(), r.tick_p50, r.tick_p99, r.fx_p50,
                 r.fx_p99);
+  }
+  if (!csv.empty()) {
+    std::ofstream out(csv);
+    out << "scene,ticks,tick_p50_ns,tick_p99_ns,pipeline_p50_ns,pipeline_p99_ns\n";
+    for (std::size_t i = 0; i < results.size(); ++i) {
+      const Result& r = results[i];
+      out << '"' << configs[i].name << '"' << "," << ticks << "," << r.tick_p50 << "," << r.tick_p99
+          << "," << r.fx_p50 << "," << r.fx_p99 << "\n";
+    }
+    if (!out) std::fprintf(stderr, "bench_effects: cannot write %s\n", csv.c_str());
   }
   const Result& none = results[0];
   const Result& one = results[1];

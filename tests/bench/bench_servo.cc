@@ -13,9 +13,11 @@
 // jitter) between the loop and the server. Reports tick compute time (goal
 // p99 <= 20 us) and period jitter (goal p99 period error <= 100 us, < 0.1%
 // late ticks), and the IR path's round trip, PD time, rate and IR age.
+// --csv FILE also writes those figures as one CSV row under a header
+// (tests/bench/update_readme.py renders the README's table from it).
 //
 //   bench_servo [--seconds S] [--script hold|press|slide|twist|circle|loop|plate]
-//               [--local | --patches [--delay MS]]
+//               [--local | --patches [--delay MS]] [--csv FILE]
 #include <grpcpp/grpcpp.h>
 #include <spdlog/spdlog.h>
 
@@ -25,6 +27,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <fstream>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -53,13 +56,15 @@ struct Args {
   bool local = false;
   bool patches = false;
   double delay_ms = 0;
+  std::string csv;  ///< write the figures here too (empty: no CSV)
 };
 
 /// One line on stderr naming the problem; exit status 2.
 [[noreturn]] void Usage(const std::string& problem) {
   std::fprintf(stderr,
                "bench_servo: %s (usage: bench_servo [--seconds S] [--script "
-               "hold|press|slide|twist|circle|loop|plate] [--local | --patches [--delay MS]])\n",
+               "hold|press|slide|twist|circle|loop|plate] [--local | --patches [--delay MS]] "
+               "[--csv FILE])\n",
                problem.c_str());
   std::exit(2);
 }
@@ -72,11 +77,15 @@ Args ParseArgs(int argc, char** argv) {
       a.local = true;
     } else if (arg == "--patches") {
       a.patches = true;
-    } else if (arg == "--seconds" || arg == "--script" || arg == "--delay") {
+    } else if (arg == "--seconds" || arg == "--script" || arg == "--delay" || arg == "--csv") {
       if (i + 1 >= argc) Usage(arg + ": missing value");
       const std::string v = argv[++i];
       if (arg == "--script") {
         a.script = v;
+        continue;
+      }
+      if (arg == "--csv") {
+        a.csv = v;
         continue;
       }
       char* end = nullptr;
@@ -139,10 +148,16 @@ void PrintLoop(const ServoStats& s) {
               s.period_us.Quantile(0.99), s.period_us.Quantile(0.999), s.period_us.max());
 }
 
+/// The period error p99 (us) of the goal: the larger deviation of the
+/// period's 1st and 99th percentiles from 1 ms.
+double PeriodErrorP99(const ServoStats& s) {
+  return std::max(std::abs(s.period_us.Quantile(0.99) - 1000.0),
+                  std::abs(1000.0 - s.period_us.Quantile(0.01)));
+}
+
 /// The goal lines and a one-line verdict.
 void PrintGoals(const ServoStats& s) {
-  const double err99 = std::max(std::abs(s.period_us.Quantile(0.99) - 1000.0),
-                                std::abs(1000.0 - s.period_us.Quantile(0.01)));
+  const double err99 = PeriodErrorP99(s);
   const double late_pct =
       s.ticks ? 100.0 * static_cast<double>(s.late_ticks) / static_cast<double>(s.ticks) : 0;
   std::printf(
@@ -157,6 +172,37 @@ void PrintGoals(const ServoStats& s) {
       "goals: tick compute p99 <= 20 us %s; period error p99 <= 100 us %s; "
       "late ticks < 0.1%% %s\n",
       compute_ok ? "met" : "MISSED", period_ok ? "met" : "MISSED", late_ok ? "met" : "MISSED");
+}
+
+/// What the IR path measured besides the loop: answers per second, round
+/// trip and PD time (us), the worker's or the server's.
+struct IrPath {
+  double answers_per_s = 0;
+  double rtt_p50_us = 0, rtt_p99_us = 0;  ///< 0 without a server
+  double pd_p50_us = 0, pd_p99_us = 0;
+};
+
+/// With --csv: one header line and one row of the run's figures.
+void WriteCsv(const Args& a, const std::string& mode, bool realtime, const ServoStats& s,
+              const IrPath& ir) {
+  if (a.csv.empty()) return;
+  std::ofstream out(a.csv);
+  out << "mode,script,seconds,delay_ms,sched_fifo,ticks,late_ticks,compute_p50_us,"
+         "compute_p99_us,compute_max_us,period_mean_us,period_std_us,period_p50_us,"
+         "period_p99_us,period_max_us,period_error_p99_us,ir_updates,ir_age_p99_ms,stale_ticks,"
+         "ticks_server,ticks_local,ticks_faded,max_force_n,energy_into_hand_j,passivity_min_j,"
+         "answers_per_s,rtt_p50_us,rtt_p99_us,pd_p50_us,pd_p99_us\n";
+  out << mode << "," << a.script << "," << a.seconds << "," << a.delay_ms << ","
+      << (realtime ? 1 : 0) << "," << s.ticks << "," << s.late_ticks << ","
+      << s.compute_us.Quantile(0.5) << "," << s.compute_us.Quantile(0.99) << ","
+      << s.compute_us.max() << "," << s.period_us.mean() << "," << s.period_us.stddev() << ","
+      << s.period_us.Quantile(0.5) << "," << s.period_us.Quantile(0.99) << "," << s.period_us.max()
+      << "," << PeriodErrorP99(s) << "," << s.ir_updates << "," << s.ir_age_ms.Quantile(0.99) << ","
+      << s.stale_ticks << "," << s.ticks_server << "," << s.ticks_local << "," << s.ticks_faded
+      << "," << s.max_force << "," << s.energy_into_hand_j << "," << s.passivity_min_j << ","
+      << ir.answers_per_s << "," << ir.rtt_p50_us << "," << ir.rtt_p99_us << "," << ir.pd_p50_us
+      << "," << ir.pd_p99_us << "\n";
+  if (!out) std::fprintf(stderr, "bench_servo: cannot write %s\n", a.csv.c_str());
 }
 
 int RunLocal(const Args& a, HandScript script) {
@@ -198,6 +244,8 @@ int RunLocal(const Args& a, HandScript script) {
       pd.size(), static_cast<double>(pd.size()) / elapsed, Quantile(pd, 0.5), Quantile(pd, 0.99),
       s.ir_age_ms.Quantile(0.5), s.ir_age_ms.Quantile(0.99));
   PrintGoals(s);
+  WriteCsv(a, "local", loop.got_realtime_priority(), s,
+           {static_cast<double>(pd.size()) / elapsed, 0, 0, Quantile(pd, 0.5), Quantile(pd, 0.99)});
   return 0;
 }
 
@@ -300,6 +348,9 @@ int RunServer(const Args& a, HandScript script) {
       net.rtt_max_us, net.server_compute_p50_us, net.server_compute_p99_us,
       s.ir_age_ms.Quantile(0.5), s.ir_age_ms.Quantile(0.99));
   PrintGoals(s);
+  WriteCsv(a, a.patches ? "patches" : "server", loop.got_realtime_priority(), s,
+           {static_cast<double>(net.updates) / elapsed, net.rtt_p50_us, net.rtt_p99_us,
+            net.server_compute_p50_us, net.server_compute_p99_us});
   if (net.updates == 0) {
     std::fprintf(stderr, "bench_servo: the server never answered (%s)\n",
                  net.last_error.empty() ? "no error reported" : net.last_error.c_str());
