@@ -2,15 +2,14 @@
 //
 // Choice of volume: axis-aligned boxes in the mesh's own frame, tested against
 // each other under the relative rigid transform as oriented boxes (the
-// 15-axis separating-axis test). Measured (tests/bench/bench_geometry, one
-// core of the 2-core build machine): the binned-SAH build takes 22 ms for the
-// 69,451-triangle bunny against 222 ms for FCL's OBBRSS, and a boolean
-// stick-vs-bunny collision query takes 7.3 us p50 / 76 us p99 against FCL's
-// 24.9 / 151 us on the same near-contact poses. Under rotation an AABB becomes
-// an OBB of the other model's frame, so the pair test costs the same as
-// OBB-vs-OBB; fitted OBBs would be tighter on slanted thin parts but need a
-// covariance fit per node (FCL's build time above). Leaves hold up to 4
-// triangles (2 and 8 measured slower on the stick-vs-bunny PDt trajectory).
+// 15-axis separating-axis test). Under rotation an AABB becomes an OBB of the
+// other model's frame, so the pair test costs the same as OBB-vs-OBB; fitted
+// OBBs would be tighter on slanted thin parts but need a covariance fit per
+// node, which makes the build several times slower (a mesh upload waits for
+// its BVH). Nodes are split by a binned surface-area heuristic along the
+// widest centroid axis. Leaves hold up to 4 triangles: smaller leaves mean more
+// box tests per query, larger ones more exact triangle tests. How the build
+// and queries compare with FCL's: tests/bench/README.md.
 #pragma once
 
 #include <algorithm>
@@ -146,8 +145,8 @@ inline bool ClipAxis(double c, double r, double v, double inv, double sgn, doubl
 }
 
 /// BoxesSweptEnter with both boxes' rotated parts given. Inline: it is the
-/// translational CCD traversal's per-pair test (16% of PDg's instructions),
-/// called across translation units otherwise.
+/// translational CCD traversal's per-pair test, the hottest code of a sweep,
+/// and would be called across translation units otherwise.
 inline bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const RotatedBox& ra,
                             const BvhNode& b, const RotatedBox& rb, double t_max, double* t_enter,
                             double margin) {
@@ -170,10 +169,9 @@ inline bool BoxesSweptEnter(const SweptBoxFrame& sf, const BvhNode& a, const Rot
   for (int j = 0; j < 3; ++j) {
     if (!clip(3 + j, a.center[j] + sf.rtt[j] - rb.c[j], a.half[j] + rb.r[j])) return false;
   }
-  // No cross axes: they are a tenth fewer visits at twice the cost per
-  // pair (measured with callgrind on the three PDt benchmarks: 17-19% fewer
-  // instructions per query without them). The six face axes still bound
-  // the swept volume conservatively.
+  // No cross axes: they would rule out few more pairs at twice the cost per
+  // pair, so a query does less work without them. The six face axes still
+  // bound the swept volume conservatively.
   *t_enter = lo;
   return true;
 }

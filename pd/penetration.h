@@ -63,7 +63,7 @@ struct PenetrationRequest {
   double improvement_tolerance = 1e-4;
   /// PDg only: work budget of the iterations (steps 2-5, after the free
   /// start), in bounding-box pair and triangle pair tests (the counters of
-  /// QueryScratch; each about 0.07 us on the benchmark machines). An
+  /// QueryScratch: unlike time, they do not depend on the machine's load). An
   /// iteration starts only while the work spent in the iterations plus the
   /// costliest iteration so far fits in the budget; the first always runs.
   /// A cold query's turn starts (pdg_cold_turn_starts) count against it.

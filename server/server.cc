@@ -305,6 +305,9 @@ void HapticServer::Start() {
   builder.AddChannelArgument(GRPC_ARG_HTTP2_MIN_RECV_PING_INTERVAL_WITHOUT_DATA_MS, 5000);
   builder.AddChannelArgument(GRPC_ARG_HTTP2_MAX_PING_STRIKES, 2);
   builder.SetMaxSendMessageSize(std::max(o.limits.max_message_bytes, 64 << 20));
+  // gRPC binds with SO_REUSEPORT by default: a second server on a port in
+  // use would start and share the connections with the first. Refuse it.
+  builder.AddChannelArgument(GRPC_ARG_ALLOW_REUSEPORT, 0);
   std::string mode = "in-process only";
   if (!o.listen.empty()) {
     std::shared_ptr<grpc::ServerCredentials> creds;

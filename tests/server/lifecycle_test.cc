@@ -134,6 +134,26 @@ TEST(Lifecycle, HealthIsNotServingAndCallsAreRefusedUntilTheStateIsLoaded) {
   srv.Shutdown();
 }
 
+TEST(Lifecycle, ASecondServerOnAPortInUseDoesNotStart) {
+  server::ServerOptions opt = server::ServerOptions::InProcess();
+  server::HapticServer first(opt);
+  first.Start();
+  ASSERT_GT(first.port(), 0);
+  opt.listen = "127.0.0.1:" + std::to_string(first.port());
+  server::HapticServer second(opt);
+  try {
+    second.Start();
+    ADD_FAILURE() << "a second server started on port " << first.port();
+  } catch (const std::runtime_error& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "cannot listen on " + opt.listen + " (address in use or invalid HOST:PORT?)");
+  }
+  auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(first.port()),
+                                     grpc::InsecureChannelCredentials());
+  EXPECT_EQ(HealthStatus(channel), 1) << "the first server still serves";
+  first.Shutdown();
+}
+
 TEST_P(LifecycleTest, ClientCancellationLeavesNothingBehind) {
   ServerHarness h(GetParam());
   auto scenes = h.Scenes();
