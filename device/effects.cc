@@ -3,26 +3,19 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <utility>
+
+#include "pd/enum_names.h"
 
 namespace hapticpd::device {
 
-const char* ToString(Effect e) {
-  switch (e) {
-    case Effect::kContact:
-      return "contact";
-    case Effect::kDamping:
-      return "damping";
-    case Effect::kFriction:
-      return "friction";
-    case Effect::kWeight:
-      return "weight";
-    case Effect::kTexture:
-      return "texture";
-    case Effect::kTorque:
-      return "torque";
-  }
-  return "?";
-}
+namespace {
+constexpr std::pair<Effect, const char*> kEffectNames[] = {
+    {Effect::kContact, "contact"}, {Effect::kDamping, "damping"}, {Effect::kFriction, "friction"},
+    {Effect::kWeight, "weight"},   {Effect::kTexture, "texture"}, {Effect::kTorque, "torque"}};
+}  // namespace
+
+const char* ToString(Effect e) { return EnumName<kEffectNames>(e, "?"); }
 
 std::string EffectSet::ToString() const {
   std::string s;

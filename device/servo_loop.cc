@@ -8,8 +8,10 @@
 #include <cerrno>
 #include <chrono>
 #include <cmath>
+#include <utility>
 
 #include "device/math.h"
+#include "pd/enum_names.h"
 
 namespace hapticpd::device {
 
@@ -31,47 +33,24 @@ const SteadyClock& SteadyClock::Instance() {
   return clock;
 }
 
-const char* ToString(DeviceStatus s) {
-  switch (s) {
-    case DeviceStatus::kOk:
-      return "ok";
-    case DeviceStatus::kNotOpen:
-      return "not-open";
-    case DeviceStatus::kEndOfData:
-      return "end-of-data";
-    case DeviceStatus::kError:
-      return "error";
-  }
-  return "?";
-}
+namespace {
+constexpr std::pair<DeviceStatus, const char*> kDeviceStatusNames[] = {
+    {DeviceStatus::kOk, "ok"},
+    {DeviceStatus::kNotOpen, "not-open"},
+    {DeviceStatus::kEndOfData, "end-of-data"},
+    {DeviceStatus::kError, "error"}};
+constexpr std::pair<TickSource, const char*> kTickSourceNames[] = {
+    {TickSource::kServer, "server"}, {TickSource::kLocal, "local"}, {TickSource::kFaded, "faded"}};
+constexpr std::pair<FailSafe, const char*> kFailSafeNames[] = {{FailSafe::kWaiting, "waiting"},
+                                                               {FailSafe::kRamping, "ramping"},
+                                                               {FailSafe::kOk, "ok"},
+                                                               {FailSafe::kFading, "fading"},
+                                                               {FailSafe::kStale, "stale"}};
+}  // namespace
 
-const char* ToString(TickSource s) {
-  switch (s) {
-    case TickSource::kServer:
-      return "server";
-    case TickSource::kLocal:
-      return "local";
-    case TickSource::kFaded:
-      return "faded";
-  }
-  return "?";
-}
-
-const char* ToString(FailSafe s) {
-  switch (s) {
-    case FailSafe::kWaiting:
-      return "waiting";
-    case FailSafe::kRamping:
-      return "ramping";
-    case FailSafe::kOk:
-      return "ok";
-    case FailSafe::kFading:
-      return "fading";
-    case FailSafe::kStale:
-      return "stale";
-  }
-  return "?";
-}
+const char* ToString(DeviceStatus s) { return EnumName<kDeviceStatusNames>(s, "?"); }
+const char* ToString(TickSource s) { return EnumName<kTickSourceNames>(s, "?"); }
+const char* ToString(FailSafe s) { return EnumName<kFailSafeNames>(s, "?"); }
 
 ServoLoop::ServoLoop(HapticDevice* device, const ServoConfig& config, const Clock* clock)
     : device_(device),

@@ -5,35 +5,25 @@
 #include <cmath>
 #include <limits>
 #include <numbers>
+#include <utility>
 
 #include "pd/convex.h"
+#include "pd/enum_names.h"
 #include "pd/material.h"
 
 namespace hapticpd::pd {
 
-const char* ToString(PdStatus s) {
-  switch (s) {
-    case PdStatus::kSeparated:
-      return "separated";
-    case PdStatus::kPenetratingSolved:
-      return "penetrating-solved";
-    case PdStatus::kPenetratingCapReached:
-      return "penetrating-cap-reached";
-    case PdStatus::kFailed:
-      return "failed";
-  }
-  return "unknown";
-}
+// Each name table next to its ToString; namespace-scope constexpr has internal linkage.
+constexpr std::pair<PdStatus, const char*> kPdStatusNames[] = {
+    {PdStatus::kSeparated, "separated"},
+    {PdStatus::kPenetratingSolved, "penetrating-solved"},
+    {PdStatus::kPenetratingCapReached, "penetrating-cap-reached"},
+    {PdStatus::kFailed, "failed"}};
+const char* ToString(PdStatus s) { return EnumName<kPdStatusNames>(s, "unknown"); }
 
-const char* ToString(PdMode m) {
-  switch (m) {
-    case PdMode::kTranslational:
-      return "pdt";
-    case PdMode::kGeneralized:
-      return "pdg";
-  }
-  return "unknown";
-}
+constexpr std::pair<PdMode, const char*> kPdModeNames[] = {{PdMode::kTranslational, "pdt"},
+                                                           {PdMode::kGeneralized, "pdg"}};
+const char* ToString(PdMode m) { return EnumName<kPdModeNames>(m, "unknown"); }
 
 void ResetPenetrationResult(PdMode mode, const Pose& X_WA, PenetrationResult* result) {
   std::vector<ContactFeature> features = std::move(result->features);

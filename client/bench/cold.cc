@@ -11,10 +11,12 @@
 #include <memory>
 #include <ostream>
 #include <random>
+#include <utility>
 
 #include "client/bench/ground_truth.h"
 #include "client/bench/svg.h"
 #include "pd/convex_hull.h"
+#include "pd/enum_names.h"
 #include "pd/pdg.h"
 #include "pd/pdt.h"
 #include "pd/queries.h"
@@ -254,17 +256,12 @@ std::vector<ColdPose> ColdPosesFromJson(const nlohmann::json& j) {
 // ---------------------------------------------------------------------------
 // Queries
 
-const char* ToString(ColdKind k) {
-  switch (k) {
-    case ColdKind::kPdt:
-      return "pdt";
-    case ColdKind::kPdg:
-      return "pdg";
-    case ColdKind::kPdgBudget:
-      return "pdg-budget";
-  }
-  return "?";
-}
+namespace {
+constexpr std::pair<ColdKind, const char*> kColdKindNames[] = {
+    {ColdKind::kPdt, "pdt"}, {ColdKind::kPdg, "pdg"}, {ColdKind::kPdgBudget, "pdg-budget"}};
+}  // namespace
+
+const char* ToString(ColdKind k) { return EnumName<kColdKindNames>(k, "?"); }
 
 namespace {
 

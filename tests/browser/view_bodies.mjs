@@ -1,19 +1,12 @@
 // (b) Live scene changes: a body injected while the page is open appears
 // (bodies, bodyIds, the scene revision), and goes when it is removed; a
 // second page opened afterwards gets the whole current scene on connect.
-import { runTest, Server, Viewer, launchBrowser, openPage, waitView, check } from './lib/harness.mjs';
+import { runTest, serveScene, startViewer, openViewer, waitView, check } from './lib/harness.mjs';
 
 runTest('view_bodies', async (ctx) => {
-  const server = await Server.start();
-  ctx.procs.push(server);
-  await server.createScene('changes');
-  await server.inject('changes', 'base', 'box:0.1,0.1,0.01', '0,0,-0.01');
-
-  const viewer = await Viewer.start({ server, scene: 'changes' });
-  ctx.procs.push(viewer);
-  ctx.browser = await launchBrowser();
-  const page = await openPage(ctx.browser, viewer.url('/'));
-  ctx.pages.push(page);
+  const server = await serveScene(ctx, 'changes', [['base', 'box:0.1,0.1,0.01', '0,0,-0.01']]);
+  const viewer = await startViewer(ctx, { server, scene: 'changes' });
+  const page = await openViewer(ctx, viewer.url('/'));
 
   const ids = () => page.evaluate(() => [...window.hapticpdView.bodyIds].sort().join(','));
   await waitView(page, () => __count(window.hapticpdView.bodies) === 1 &&
@@ -31,8 +24,7 @@ runTest('view_bodies', async (ctx) => {
   check(Number(rev1) > Number(rev0), `the scene revision grew on inject (${rev0} -> ${rev1})`);
 
   // A page opened now gets the whole current scene.
-  const page2 = await openPage(ctx.browser, viewer.url('/'));
-  ctx.pages.push(page2);
+  const page2 = await openViewer(ctx, viewer.url('/'));
   await waitView(page2, () => __count(window.hapticpdView.bodies) === 2 &&
                               window.hapticpdView.bodyIds.includes('newcomer'),
                  { what: 'a second page shown both bodies on connect' });

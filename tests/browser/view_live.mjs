@@ -5,22 +5,15 @@
 // screenshot (HAPTICPD_SCREENSHOT, build/viewer-screenshot.png).
 import fs from 'node:fs';
 import path from 'node:path';
-import { runTest, Server, Viewer, launchBrowser, openPage, waitView, check, count, config,
+import { runTest, serveScene, startViewer, openViewer, waitView, check, count, config,
          viewState } from './lib/harness.mjs';
 
 runTest('view_live', async (ctx) => {
-  const server = await Server.start();
-  ctx.procs.push(server);
-  await server.createScene('live');
-  await server.inject('live', 'table', 'box:0.15,0.15,0.01', '0,0,-0.01');
-  await server.inject('live', 'block', 'box:0.02,0.02,0.02', '0,0,0.02');
-  await server.inject('live', 'ball', 'sphere:0.015', '0.07,0.05,0.015');
-
-  const viewer = await Viewer.start({ server, scene: 'live' });
-  ctx.procs.push(viewer);
-  ctx.browser = await launchBrowser();
-  const page = await openPage(ctx.browser, viewer.url('/'));
-  ctx.pages.push(page);
+  const server = await serveScene(ctx, 'live', [['table', 'box:0.15,0.15,0.01', '0,0,-0.01'],
+                                                 ['block', 'box:0.02,0.02,0.02', '0,0,0.02'],
+                                                 ['ball', 'sphere:0.015', '0.07,0.05,0.015']]);
+  const viewer = await startViewer(ctx, { server, scene: 'live' });
+  const page = await openViewer(ctx, viewer.url('/'));
 
   await waitView(page, () => {
     const v = window.hapticpdView;

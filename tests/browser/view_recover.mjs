@@ -5,20 +5,13 @@
 // serverConnected false, then true again, the bodies shown again, a body
 // injected after the restart appears). The page is never reloaded: a marker
 // set on window at the start is still there at the end.
-import { runTest, Server, Viewer, launchBrowser, openPage, waitView, check, until } from './lib/harness.mjs';
+import { runTest, serveScene, startViewer, openViewer, waitView, check, until } from './lib/harness.mjs';
 
 runTest('view_recover', async (ctx) => {
-  const server = await Server.start();
-  ctx.procs.push(server);
-  await server.createScene('again');
-  await server.inject('again', 'one', 'box:0.05,0.05,0.01', '0,0,-0.01');
-  await server.inject('again', 'two', 'sphere:0.02', '0,0,0.02');
-
-  const viewer = await Viewer.start({ server, scene: 'again' });
-  ctx.procs.push(viewer);
-  ctx.browser = await launchBrowser();
-  const page = await openPage(ctx.browser, viewer.url('/'));
-  ctx.pages.push(page);
+  const server = await serveScene(ctx, 'again', [['one', 'box:0.05,0.05,0.01', '0,0,-0.01'],
+                                                  ['two', 'sphere:0.02', '0,0,0.02']]);
+  const viewer = await startViewer(ctx, { server, scene: 'again' });
+  const page = await openViewer(ctx, viewer.url('/'));
   await page.evaluate(() => { window.__notReloaded = 'yes'; });
 
   const twoBodies = () => {

@@ -5,14 +5,11 @@
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import { runTest, Server, Viewer, launchBrowser, openPage, waitView, check } from './lib/harness.mjs';
+import { runTest, serveScene, startViewer, openViewer, waitView, check } from './lib/harness.mjs';
 
 runTest('view_replay', async (ctx) => {
-  const server = await Server.start();
-  ctx.procs.push(server);
-  await server.createScene('rec');
-  await server.inject('rec', 'table', 'box:0.15,0.15,0.01', '0,0,-0.01');
-  await server.inject('rec', 'block', 'box:0.02,0.02,0.02', '0,0,0.02');
+  const server = await serveScene(ctx, 'rec', [['table', 'box:0.15,0.15,0.01', '0,0,-0.01'],
+                                                ['block', 'box:0.02,0.02,0.02', '0,0,0.02']]);
 
   const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'hapticpd-replay-'));
   const file = path.join(dir, 'press.csv');
@@ -26,13 +23,10 @@ runTest('view_replay', async (ctx) => {
 
   // The scene is fetched from the server the recording names; --loop so
   // that the contact comes round again whenever the page looks.
-  const viewer = await Viewer.start({ server, scene: 'rec', extra: ['--replay', file, '--loop'] });
-  ctx.procs.push(viewer);
+  const viewer = await startViewer(ctx, { server, scene: 'rec', extra: ['--replay', file, '--loop'] });
   const h = await viewer.health();
   check(h.source === `replay of ${file}` && h.bodies === 2, `/healthz ${JSON.stringify(h)}: a replay, 2 bodies`);
-  ctx.browser = await launchBrowser();
-  const page = await openPage(ctx.browser, viewer.url('/'));
-  ctx.pages.push(page);
+  const page = await openViewer(ctx, viewer.url('/'));
   await waitView(page, () => {
     const v = window.hapticpdView;
     return v.connected && __count(v.bodies) === 2 && v.source.startsWith('replay of ');

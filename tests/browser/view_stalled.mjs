@@ -17,7 +17,7 @@
 // what fills the viewer's queue.
 import path from 'node:path';
 import { fileURLToPath } from 'node:url';
-import { runTest, Server, Viewer, Proc, launchBrowser, openPage, waitView, check, until,
+import { runTest, serveScene, startViewer, Proc, launchBrowser, openViewer, waitView, check, until,
          tcpSockets, viewState } from './lib/harness.mjs';
 
 const RUN_S = 3;
@@ -26,12 +26,9 @@ const MIN_STALLED_BYTES = 8192;
 const here = path.dirname(fileURLToPath(import.meta.url));
 
 runTest('view_stalled', async (ctx) => {
-  const server = await Server.start();
-  ctx.procs.push(server);
-  await server.createScene('stall');
-  await server.inject('stall', 'block', 'box:0.03,0.03,0.02', '0,0,0');
-  const viewer = await Viewer.start({ server, scene: 'stall' });
-  ctx.procs.push(viewer);
+  const server = await serveScene(ctx, 'stall', [['block', 'box:0.03,0.03,0.02', '0,0,0']]);
+  const viewer = await startViewer(ctx, { server, scene: 'stall' });
+  // Running from the start, so that sessions A and B differ only in the page and the client.
   ctx.browser = await launchBrowser();
 
   const rates = { A: [], B: [] };
@@ -53,8 +50,7 @@ runTest('view_stalled', async (ctx) => {
     await session('A');
 
     // B: a page, ready and showing the block, then paused; a client that never reads.
-    const page = await openPage(ctx.browser, viewer.url('/'));
-    ctx.pages.push(page);
+    const page = await openViewer(ctx, viewer.url('/'));
     await waitView(page, () => window.hapticpdView.connected && __count(window.hapticpdView.bodies) === 1,
                    { what: 'the page showing the block' });
     const cdp = await page.createCDPSession();

@@ -4,8 +4,8 @@
 // refused with 401; with the right one they are served and the page becomes
 // ready and shows the scene.
 import net from 'node:net';
-import { runTest, Server, Viewer, launchBrowser, openPage, waitView, check, httpGet,
-         viewState } from './lib/harness.mjs';
+import { runTest, serveScene, startViewer, launchBrowser, openPage, openViewer, waitView, check,
+         httpGet, viewState } from './lib/harness.mjs';
 
 const TOKEN = 'v1ewer-t0ken-for-the-test';
 
@@ -32,13 +32,9 @@ function wsUpgradeStatus(port, pathAndQuery, headers = {}) {
 }
 
 runTest('view_token', async (ctx) => {
-  const server = await Server.start();
-  ctx.procs.push(server);
-  await server.createScene('guarded');
-  await server.inject('guarded', 'thing', 'box:0.02,0.02,0.02', '0,0,0');
-
-  const viewer = await Viewer.start({ server, scene: 'guarded', host: '0.0.0.0', viewerToken: TOKEN });
-  ctx.procs.push(viewer);
+  const server = await serveScene(ctx, 'guarded', [['thing', 'box:0.02,0.02,0.02', '0,0,0']]);
+  const viewer = await startViewer(ctx, { server, scene: 'guarded', host: '0.0.0.0',
+                                          viewerToken: TOKEN });
   const base = viewer.base;  // http://127.0.0.1:PORT
   const port = viewer.port;
 
@@ -75,8 +71,7 @@ runTest('view_token', async (ctx) => {
   check(!(await bad.evaluate(() => !!window.hapticpdView)), 'no viewer state on the refused page');
   await bad.close();
 
-  const page = await openPage(ctx.browser, `${base}/?token=${TOKEN}`);
-  ctx.pages.push(page);
+  const page = await openViewer(ctx, `${base}/?token=${TOKEN}`);
   check(page.response.status() === 200, 'the page with the right token: 200');
   await waitView(page, () => window.hapticpdView.connected && __count(window.hapticpdView.bodies) === 1,
                  { what: 'the page with the token connected, its body shown (mesh fetched with the token)' });

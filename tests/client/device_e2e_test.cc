@@ -24,7 +24,6 @@ namespace {
 
 using device::HandScript;
 using device::Pose;
-using device::ServoConfig;
 using device::TickRecord;
 using device::Vec3;
 using testing::kProbeRadius;
@@ -153,7 +152,7 @@ TEST(DeviceE2e, StalledUpdateStreamFadesAndRecovers) {
   // flow again.
   Rig rig;
   testing::AddBox(*rig.server);
-  ServoConfig config;
+  device::ServoConfig config;
   // Engage at once although the hand starts in contact.
   config.startup.quiet_force = 1e3;
   config.startup.quiet_torque = 1e3;

@@ -93,11 +93,16 @@ struct Scene {
   }
 };
 
-/// Offers the sample, steps the model at t, and takes what it published:
-/// false when it published nothing.
-bool StepFetch(LocalContactModel* lm, const ProxySample& sample, std::int64_t t, IrMailbox* out) {
+/// Offers the sample and steps the model at t: false when it published nothing.
+bool OfferAndStep(LocalContactModel* lm, const ProxySample& sample, std::int64_t t,
+                  IrMailbox* out) {
   lm->OfferSample(sample);
-  return lm->Step(t, out) && out->Fetch();
+  return lm->Step(t, out);
+}
+
+/// OfferAndStep, then takes what the model published.
+bool StepFetch(LocalContactModel* lm, const ProxySample& sample, std::int64_t t, IrMailbox* out) {
+  return OfferAndStep(lm, sample, t, out) && out->Fetch();
 }
 
 TEST(PatchStore, HoldsWhatWasSentAndCoversTheProbe) {
@@ -325,8 +330,7 @@ TEST(LocalModel, ALateServerAnswerForAPoseTheProbeHasLeftIsHeldBack) {
   t += 1'000'000;
   late.receive_time_ns = t;
   lm.OfferServerIr(late);
-  lm.OfferSample(sc.Sample(far, 2, t));
-  EXPECT_FALSE(lm.Step(t, &out));
+  EXPECT_FALSE(OfferAndStep(&lm, sc.Sample(far, 2, t), t, &out));
   EXPECT_FALSE(out.Fetch());
   EXPECT_EQ(lm.stats().uncovered, 1u);
   // An answer for where the probe is now is rendered.
@@ -422,8 +426,7 @@ TEST(LocalModel, ABadPatchIsCountedAndTurnsTheModelOffUntilReset) {
   PatchDelta bad = sc.Patch(X_WA, 0.01);
   bad.bodies[0].triangle_indices[0] = 1u << 30;
   lm.OfferPatch(bad, t);
-  lm.OfferSample(sc.Sample(X_WA, 1, t));
-  (void)lm.Step(t, &out);
+  (void)OfferAndStep(&lm, sc.Sample(X_WA, 1, t), t, &out);
   LocalModelStats s = lm.stats();
   EXPECT_EQ(s.bad_patches, 1u);
   EXPECT_NE(s.last_problem.find("out of range"), std::string::npos);
@@ -432,21 +435,18 @@ TEST(LocalModel, ABadPatchIsCountedAndTurnsTheModelOffUntilReset) {
   // held is no longer what is held.
   lm.OfferPatch(sc.Patch(X_WA, 0.01, 2), t);
   t += 1'000'000;
-  lm.OfferSample(sc.Sample(X_WA, 2, t));
-  (void)lm.Step(t, &out);
+  (void)OfferAndStep(&lm, sc.Sample(X_WA, 2, t), t, &out);
   EXPECT_EQ(lm.stats().local_answers, 0u);
   // A new stream starts afresh.
   lm.Reset();
   lm.OfferPatch(sc.Patch(X_WA, 0.01, 1), t);
   t += 1'000'000;
-  lm.OfferSample(sc.Sample(X_WA, 3, t));
-  ASSERT_TRUE(lm.Step(t, &out));
+  ASSERT_TRUE(OfferAndStep(&lm, sc.Sample(X_WA, 3, t), t, &out));
   EXPECT_EQ(lm.stats().local_answers, 1u);
   // An undecodable patch counts the same way.
   lm.RejectPatch("patch 2 bodies[0] ('box').vertices: 5 numbers for 2 vertex indices");
   t += 1'000'000;
-  lm.OfferSample(sc.Sample(X_WA, 4, t));
-  (void)lm.Step(t, &out);
+  (void)OfferAndStep(&lm, sc.Sample(X_WA, 4, t), t, &out);
   EXPECT_EQ(lm.stats().bad_patches, 2u);
 }
 
@@ -459,16 +459,13 @@ TEST(LocalModel, AQuietStreamDropsThePatch) {
   const Pose X_WA = sc.ProbeAt(0.003);
   std::int64_t t = 1'000'000'000;
   lm.OfferPatch(sc.Patch(X_WA, 0.01), t);
-  lm.OfferSample(sc.Sample(X_WA, 1, t));
-  ASSERT_TRUE(lm.Step(t, &out));
+  ASSERT_TRUE(OfferAndStep(&lm, sc.Sample(X_WA, 1, t), t, &out));
   EXPECT_EQ(lm.stats().local_answers, 1u);
   t += 400'000'000;  // quiet, but not for long
-  lm.OfferSample(sc.Sample(X_WA, 2, t));
-  ASSERT_TRUE(lm.Step(t, &out));
+  ASSERT_TRUE(OfferAndStep(&lm, sc.Sample(X_WA, 2, t), t, &out));
   EXPECT_EQ(lm.stats().local_answers, 2u);
   t += 200'000'000;  // 0.6 s without a message
-  lm.OfferSample(sc.Sample(X_WA, 3, t));
-  (void)lm.Step(t, &out);
+  (void)OfferAndStep(&lm, sc.Sample(X_WA, 3, t), t, &out);
   EXPECT_EQ(lm.stats().local_answers, 2u);
   EXPECT_EQ(lm.stats().drops, 1u);
 }
@@ -482,8 +479,7 @@ TEST(LocalModel, TheServersAnswerIsCheckedAgainstTheLocalAnswerToTheSameSample) 
   lm.OfferPatch(sc.Patch(X_WA, 0.01), t);
   for (std::uint64_t seq = 1; seq <= 3; ++seq) {
     t += 1'000'000;
-    lm.OfferSample(sc.Sample(X_WA, seq, t));
-    ASSERT_TRUE(lm.Step(t, &out));
+    ASSERT_TRUE(OfferAndStep(&lm, sc.Sample(X_WA, seq, t), t, &out));
   }
   // The server answers sample 2 as the patch did (3 mm), then sample 3 a
   // millimetre deeper, then a sample the local model never answered.
@@ -543,8 +539,7 @@ TEST(LocalModel, AFreshPatchQueryIsSeededWithTheServersAnswer) {
       lm.OfferServerIr(server);
     }
     lm.OfferPatch(sc.Patch(X_WA, 0.01), t);
-    lm.OfferSample(sc.Sample(X_WA, 2, t));
-    EXPECT_TRUE(lm.Step(t, &out));
+    EXPECT_TRUE(OfferAndStep(&lm, sc.Sample(X_WA, 2, t), t, &out));
     EXPECT_TRUE(out.Fetch());
     EXPECT_EQ(out.front().source, kIrSourceLocal);
     EXPECT_GE(out.front().num_rows, 1);

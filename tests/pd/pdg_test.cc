@@ -30,10 +30,8 @@
 namespace hapticpd::pd {
 namespace {
 
-using testing::FclCollide;
 using testing::FclModel;
 using testing::NearSurfacePose;
-using testing::RandomRotation;
 
 // --------------------------------------------------------------------------
 // The QP
@@ -228,13 +226,13 @@ TEST(PdgRandom, EveryAnswerIsAVerifiedContactNoDeeperThanPdt) {
     int penetrating = 0, rotated = 0;
     double ratio_sum = 0;
     for (int i = 0; i < count; ++i) {
-      const Pose X_WB = Pose::FromQuaternion(RandomRotation(rng), Vec3(0.1, -0.2, 0.3));
+      const Pose X_WB = Pose::FromQuaternion(testing::RandomRotation(rng), Vec3(0.1, -0.2, 0.3));
       const Pose X_WA = X_WB * NearSurfacePose(A, B, rng, c.spread);
       ComputePdg(A, X_WA, B, X_WB, ColdRequest(), &data, &r);
       ComputePdt(A, X_WA, B, X_WB, ColdRequest(), &pdt_data, &pdt);
       if (r.status == PdStatus::kSeparated) {
         EXPECT_EQ(pdt.status, PdStatus::kSeparated);
-        EXPECT_FALSE(FclCollide(ps.fa, X_WA, ps.fb, X_WB));
+        EXPECT_FALSE(testing::FclCollide(ps.fa, X_WA, ps.fb, X_WB));
         continue;
       }
       ++penetrating;

@@ -74,11 +74,16 @@ std::optional<v1::GeometryPatch> AnswerAndPatch(SessionWorker& w, const MailPose
 
 Vec3 V(const v1::Vec3& v) { return Vec3(v.x(), v.y(), v.z()); }
 
+/// Starts `w` with `hello` on `scene`; these tests do not read the welcome.
+grpc::Status StartWorker(SessionWorker& w, const v1::Hello& hello, const server::ScenePtr& scene) {
+  v1::Welcome welcome;
+  return w.Start(hello, scene, &welcome);
+}
+
 TEST(GeometryPatch, FirstPatchHoldsExactlyTheTrianglesWithinTheRegion) {
   BallScene s;
   SessionWorker w(server::Limits{}, "s1");
-  v1::Welcome welcome;
-  ASSERT_TRUE(w.Start(PatchHello(), s.scene, &welcome).ok());
+  ASSERT_TRUE(StartWorker(w, PatchHello(), s.scene).ok());
   // The probe's reach: its bounding box's farthest corner from the centre
   // of mass (the client tests those corners), sqrt(3) radii for a sphere.
   const double r = w.patch_builder()->probe_reach();
@@ -113,8 +118,7 @@ TEST(GeometryPatch, FirstPatchHoldsExactlyTheTrianglesWithinTheRegion) {
 TEST(GeometryPatch, ProbeMovesAQuarterMarginBeforeTheNextPatchWhichSendsOnlyNewTriangles) {
   BallScene s;
   SessionWorker w(server::Limits{}, "s1");
-  v1::Welcome welcome;
-  ASSERT_TRUE(w.Start(PatchHello(), s.scene, &welcome).ok());
+  ASSERT_TRUE(StartWorker(w, PatchHello(), s.scene).ok());
   PatchClient client;
   const auto first = AnswerAndPatch(w, Pose1(s.Above(0.004), 1));
   ASSERT_TRUE(first);
@@ -166,8 +170,7 @@ TEST(GeometryPatch, PerBodyLimitKeepsTheNearestAndShrinksTheCover) {
     SCOPED_TRACE("max_triangles_per_body " + std::to_string(asked));
     const std::size_t limit = asked == 0 ? 40 : std::min<std::size_t>(asked, 40);
     SessionWorker w(limits, "s1");
-    v1::Welcome welcome;
-    ASSERT_TRUE(w.Start(PatchHello(asked), s.scene, &welcome).ok());
+    ASSERT_TRUE(StartWorker(w, PatchHello(asked), s.scene).ok());
     ASSERT_EQ(w.patch_builder()->limit(), limit);
     PatchClient client;
     // Touching the ball, then sliding over it: every patch keeps the limit.
@@ -198,8 +201,7 @@ TEST(GeometryPatch, PerBodyLimitKeepsTheNearestAndShrinksTheCover) {
 TEST(GeometryPatch, RemovedBodyIsDroppedAndNewGeometryUnderItsIdStartsOver) {
   BallScene s;
   SessionWorker w(server::Limits{}, "s1");
-  v1::Welcome welcome;
-  ASSERT_TRUE(w.Start(PatchHello(), s.scene, &welcome).ok());
+  ASSERT_TRUE(StartWorker(w, PatchHello(), s.scene).ok());
   PatchClient client;
   const Vec3 c = s.Above(0.004);
   auto patch = AnswerAndPatch(w, Pose1(c, 1));
@@ -250,8 +252,7 @@ TEST(GeometryPatch, HelloWithoutPatchesNeverGetsOne) {
   disabled.mutable_patches()->set_enabled(false);
   for (const v1::Hello& h : {plain, disabled}) {
     SessionWorker w(server::Limits{}, "s1");
-    v1::Welcome welcome;
-    ASSERT_TRUE(w.Start(h, s.scene, &welcome).ok());
+    ASSERT_TRUE(StartWorker(w, h, s.scene).ok());
     EXPECT_FALSE(w.patches_enabled());
     for (std::uint64_t k = 1; k <= 3; ++k) {
       EXPECT_FALSE(AnswerAndPatch(w, Pose1(s.Above(0.01 * static_cast<double>(k)), k)));
@@ -263,15 +264,13 @@ TEST(GeometryPatch, BadPatchRequestIsRejectedNamingTheField) {
   BallScene s;
   for (const double m : {-0.001, std::nan(""), HUGE_VAL, 1.5}) {
     SessionWorker w(server::Limits{}, "s1");
-    v1::Welcome welcome;
-    const grpc::Status st = w.Start(PatchHello(0, m), s.scene, &welcome);
+    const grpc::Status st = StartWorker(w, PatchHello(0, m), s.scene);
     EXPECT_EQ(st.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << m;
     EXPECT_EQ(st.error_message().rfind("hello.patches.min_margin: ", 0), 0u) << st.error_message();
   }
   // In range: accepted, and the margin never below it.
   SessionWorker w(server::Limits{}, "s1");
-  v1::Welcome welcome;
-  ASSERT_TRUE(w.Start(PatchHello(0, 0.02), s.scene, &welcome).ok());
+  ASSERT_TRUE(StartWorker(w, PatchHello(0, 0.02), s.scene).ok());
   EXPECT_EQ(w.patch_builder()->min_margin(), 0.02);
   const auto patch = AnswerAndPatch(w, Pose1(s.Above(0.004), 1));
   ASSERT_TRUE(patch);
@@ -343,8 +342,7 @@ TEST(MovingBody, PdSeesTheBodyWhereItIsWhenThePoseArrives) {
   RisingBox s;
   ASSERT_EQ(s.scene->snapshot()->bodies[0].pose_time_ns, kT0);  // kept when given
   SessionWorker w(server::Limits{}, "s1");
-  v1::Welcome welcome;
-  ASSERT_TRUE(w.Start(PatchHello(), s.scene, &welcome).ok());
+  ASSERT_TRUE(StartWorker(w, PatchHello(), s.scene).ok());
   MailPose p;
   p.sequence = 1;
   p.X_WA = Pose::Identity();  // the probe sphere (1 cm) at rest at the origin
@@ -371,8 +369,7 @@ TEST(MovingBody, PdSeesTheBodyWhereItIsWhenThePoseArrives) {
 TEST(MovingBody, PatchCarriesTheMotionAndIsResentWhileTheBodyMoves) {
   RisingBox s;
   SessionWorker w(server::Limits{}, "s1");
-  v1::Welcome welcome;
-  ASSERT_TRUE(w.Start(PatchHello(), s.scene, &welcome).ok());
+  ASSERT_TRUE(StartWorker(w, PatchHello(), s.scene).ok());
   MailPose p;
   p.sequence = 1;
   p.X_WA = Pose::Identity();

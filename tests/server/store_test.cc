@@ -143,6 +143,12 @@ std::string Everything(v1::SceneService::Stub& stub) {
   return out;
 }
 
+/// Everything a server started afresh on the store in `dir` serves.
+std::string EverythingAfterRestart(const fs::path& dir) {
+  ServerHarness h(Transport::kInProcess, StateOptions(dir));
+  return Everything(*h.Scenes());
+}
+
 TEST(Store, RestartServesEverythingAcknowledged) {
   TempDir dir;
   std::string before;
@@ -303,9 +309,7 @@ TEST(Store, FailedCommitChangesNothingAndTheServerKeepsServing) {
     ASSERT_TRUE(CreateScene(*stub, "lab").ok());
     acknowledged = Everything(*stub);
   }
-  ServerHarness h(Transport::kInProcess, StateOptions(dir.path()));
-  auto stub = h.Scenes();
-  EXPECT_EQ(Everything(*stub), acknowledged);
+  EXPECT_EQ(EverythingAfterRestart(dir.path()), acknowledged);
 }
 
 TEST(Store, FailedPoseBatchIsWrittenLater) {
@@ -325,9 +329,7 @@ TEST(Store, FailedPoseBatchIsWrittenLater) {
     }
     acknowledged = Everything(*stub);
   }
-  ServerHarness h(Transport::kInProcess, StateOptions(dir.path()));
-  auto stub = h.Scenes();
-  EXPECT_EQ(Everything(*stub), acknowledged);
+  EXPECT_EQ(EverythingAfterRestart(dir.path()), acknowledged);
 }
 
 TEST(Store, FullDatabaseFailsTheMutationAndKeepsServing) {

@@ -380,6 +380,35 @@ export async function openPage(browser, url, { waitReady = true, timeoutMs = 200
   return page;
 }
 
+// ---------------------------------------------------------------------------
+// How a test sets up: a server holding one scene, a viewer of it, pages in
+// the browser; each kept in ctx for runTest's cleanup and failure report.
+
+// `hapticpd serve` with scene `scene` holding `bodies`, each [id, shape, pose]
+// as Server.inject takes them, injected in that order.
+export async function serveScene(ctx, scene, bodies) {
+  const server = await Server.start();
+  ctx.procs.push(server);
+  await server.createScene(scene);
+  for (const [id, shape, pose] of bodies) await server.inject(scene, id, shape, pose);
+  return server;
+}
+
+// `hapticpd view` started with Viewer.start's options.
+export async function startViewer(ctx, opts) {
+  const viewer = await Viewer.start(opts);
+  ctx.procs.push(viewer);
+  return viewer;
+}
+
+// openPage in ctx's browser (launched here when the test has none yet).
+export async function openViewer(ctx, url, opts) {
+  if (!ctx.browser) ctx.browser = await launchBrowser();
+  const page = await openPage(ctx.browser, url, opts);
+  ctx.pages.push(page);
+  return page;
+}
+
 // window.hapticpdView as JSON (without big arrays), for messages.
 export async function viewState(page) {
   try {
