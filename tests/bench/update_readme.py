@@ -263,6 +263,9 @@ def run_cold_directions(r):
         r.run([r.exe("hapticpd-bench"), "cold", "--poses-from", str(poses), "--cold-directions",
                str(n), "--out", str(r.out), "--json"], f"directions{n}.json",
               f"{B}/hapticpd-bench cold --poses-from cold16.json --cold-directions {n} --json")
+    r.run([r.exe("hapticpd-bench"), "cold", "--poses-from", str(poses), "--turn-starts", "0",
+           "--out", str(r.out), "--json"], "turnless.json",
+          f"{B}/hapticpd-bench cold --poses-from cold16.json --turn-starts 0 --json")
 
 
 def run_cold_stored(r):
@@ -726,19 +729,23 @@ def render_cold(root):
 def render_cold_directions(root):
     d = root / "cold-directions"
     body = []
-    for n in COLD_DIRECTIONS:
-        p = d / f"directions{n}.json"
+    runs = [(f"{n}" + (" (default)" if n == 141 else ""), f"directions{n}.json")
+            for n in COLD_DIRECTIONS]
+    runs.append(("141, no PDg turn starts", "turnless.json"))
+    for label, name in runs:
+        p = d / name
         if not p.is_file():
             continue
         s = {x["kind"]: x for x in read_json(p)["summary"]}
         t, g = s["pdt"], s["pdg"]
-        body.append([f"{n}" + (" (default)" if n == 141 else ""), t["above_1_01"],
+        body.append([label, t["above_1_01"],
                      t["above_1_10"], f"{t['ratio_max']:.2f}", num(t["p50_us"]), num(t["p99_us"]),
                      g["above_1_01"], g["above_1_10"], num(g["p50_us"])])
     return "\n".join([
         conditions(d, "the poses and references of the run above",
                    f"`{B}/hapticpd-bench cold --poses-from cold16.json --cold-directions N "
-                   f"--json` for N = {', '.join(str(n) for n in COLD_DIRECTIONS)}"), "",
+                   f"--json` for N = {', '.join(str(n) for n in COLD_DIRECTIONS)}, and "
+                   f"`--turn-starts 0`"), "",
         table(["escape directions", "PDt > 1.01", "PDt > 1.10", "PDt max", "PDt p50 µs",
                "PDt p99 µs", "PDg > 1.01", "PDg > 1.10", "PDg p50 µs"], body)])
 
