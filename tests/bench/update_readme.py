@@ -53,6 +53,14 @@ MODES = {"pdt": "PDt", "pdg": "PDg"}
 # Formatting
 
 
+def by_magnitude(a):
+    """The format of a figure of magnitude a >= 1 (0, 1 or 2 decimals), else None."""
+    for low, spec in ((100, ".0f"), (10, ".1f"), (1, ".2f")):
+        if a >= low:
+            return spec
+    return None
+
+
 def num(x, digits=None):
     """A figure as a table shows it: 3 significant-ish digits, thousands with commas."""
     if x is None or x == "":
@@ -65,12 +73,8 @@ def num(x, digits=None):
     a = abs(x)
     if a >= 1000:
         return f"{x:,.0f}"
-    if a >= 100:
-        return f"{x:.0f}"
-    if a >= 10:
-        return f"{x:.1f}"
-    if a >= 1:
-        return f"{x:.2f}"
+    if spec := by_magnitude(a):
+        return f"{x:{spec}}"
     if a == 0:
         return "0"
     return f"{x:.2g}"
@@ -359,14 +363,17 @@ def frames_over(frames, col, limit=1000.0):
     return out
 
 
-def render_pdt(root):
-    d = root / "pdt"
-    rows = read_csv(d / "pdt.csv")
+def coherent_rows(root, mode, cells):
+    """The folder, frame count and one table row per benchmark of bench_pdt or
+    bench_pdg's CSV: the benchmark's name, then cells(row)."""
+    d = root / mode
+    rows = read_csv(d / f"{mode}.csv")
     frames = rows[0]["frames"] if rows else "?"
-    body = []
-    for s in rows:
-        body.append([
-            PAIRS.get(s["benchmark"], s["benchmark"]),
+    return d, frames, [[PAIRS.get(s["benchmark"], s["benchmark"])] + cells(s) for s in rows]
+
+
+def render_pdt(root):
+    d, frames, body = coherent_rows(root, "pdt", lambda s: [
             f"{int(s['probe_triangles']):,} / {int(s['scene_triangles']):,}",
             num(s["pdt_p50_us"]), num(s["pdt_p99_us"]), num(s["pdt_max_us"]),
             s["frames_over_1ms"], f"{float(s['mean_iterations']):.2f}",
@@ -381,13 +388,7 @@ def render_pdt(root):
 
 
 def render_pdg(root):
-    d = root / "pdg"
-    rows = read_csv(d / "pdg.csv")
-    frames = rows[0]["frames"] if rows else "?"
-    body = []
-    for s in rows:
-        body.append([
-            PAIRS.get(s["benchmark"], s["benchmark"]),
+    d, frames, body = coherent_rows(root, "pdg", lambda s: [
             num(s["pdg_p50_us"]), num(s["pdg_p99_us"]), num(s["pdg_max_us"]),
             s["frames_over_1ms"], num(s["unbudgeted_p99_us"]),
             f"{float(s['p99_ratio_fcl']):.2f}", f"{s['cap_reached']} / {s['penetrating_frames']}",
@@ -506,13 +507,7 @@ def err(x):
     v = 100 * float(x)
     if v == 0:
         return "0"
-    if v >= 100:
-        return f"{v:.0f}%"
-    if v >= 10:
-        return f"{v:.1f}%"
-    if v >= 1:
-        return f"{v:.2f}%"
-    return f"{v:.2g}%"
+    return f"{v:{by_magnitude(v) or '.2g'}}%"
 
 
 def render_accuracy(root):
