@@ -350,8 +350,8 @@ bool SweepTranslation(PdgContext& c, const Pose& X_from, const Pose& X_to, Pose*
 // finds a free pose within a motion of eps / 2 of a colliding one. It need
 // not be the first contact along the motion (a thin feature can pass in
 // between), but any touching pose serves the out-projection. Conservative
-// advancement (RigidCcd) found the first contact, but its Distance queries
-// near a contact cost milliseconds on the benchmark models and its speed
+// advancement (RigidCcd) would find the first contact, but its Distance
+// queries slow down sharply near a contact on large meshes and its speed
 // bound |dc| + theta r_max makes it crawl; a collision query stops at the
 // first crossing pair.
 bool SweepRotation(PdgContext& c, const Pose& X_from, Pose* X_contact) {
@@ -398,11 +398,10 @@ bool SweepRotation(PdgContext& c, const Pose& X_from, Pose* X_contact) {
 //
 // Deviation from the rigid-motion out-projection of ALGORITHMS.md: the
 // motion is translation first, rotation only when needed, and the rotation
-// sweep finds a touching pose, not necessarily the first contact. Measured on
-// bench_pdg (500 frames each), six rigid CCD steps before the translational
-// finish made PDg 3 to 20 times slower at p50 for the same median sigma
-// (within 0.01 of it); the final contact is still checked along the rigid
-// motion from q_o (Polish).
+// sweep finds a touching pose, not necessarily the first contact. Rigid CCD
+// steps before the translational finish cost several times as much for the
+// same sigma (tests/bench/README.md, "Approaches tried"); the final contact
+// is still checked along the rigid motion from q_o (Polish).
 bool OutProject(PdgContext& c, const Pose& X_free, Pose* X_contact) {
   Pose X_end;
   if (SweepTranslation(c, X_free, c.X_BA, X_contact, &X_end)) return true;
@@ -896,11 +895,10 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
   if (CoherentStart(c, &X_coh, &cached_sigma)) AcceptSwept(c, X_coh, &best);
   // A coherent start much deeper than the answer it came from has lost that
   // answer's basin (the probe jumped, or the cached contact's way out closed
-  // up): PDt's answer is tried too, else PDg can end far above PDt (up to
-  // 1.6x on the hammer-vs-beast benchmark) and stay there for the frames
-  // that follow. PDt starts cold then: its own coherence cache is as old as
-  // its last run, and from there it found the same worse basin (9 of the
-  // benchmark's 14 frames above PDt stayed above).
+  // up): PDt's answer is tried too, else PDg can end far above PDt and stay
+  // there for the frames that follow. PDt starts cold then: its own
+  // coherence cache is as old as its last run, and from there it finds the
+  // same worse basin.
   const double slack = 0.01 * A.mesh().size();
   const bool lost_basin =
       best.valid && std::sqrt(best.sigma) > 1.2 * std::sqrt(cached_sigma) + slack;
