@@ -75,7 +75,7 @@ void PdQueryData::Remember(const CoherenceEntry& e) {
 // ---------------------------------------------------------------------------
 // The in-projection QP
 
-bool SolveMinNormQp(const std::vector<ContactPlane>& planes, const Vec3& x0, Vec3* x_out) {
+void SolveMinNormQp(const std::vector<ContactPlane>& planes, const Vec3& x0, Vec3* x_out) {
   // Primal active set (Nocedal & Wright, Alg. 16.3) for min 1/2 |x|^2.
   // Working set W holds at most 3 linearly independent constraints, since a
   // blocking constraint always has n . p < 0 for a step p in W's null space.
@@ -111,7 +111,7 @@ bool SolveMinNormQp(const std::vector<ContactPlane>& planes, const Vec3& x0, Vec
       }
       if (worst < 0) {
         *x_out = x;
-        return true;
+        return;
       }
       W[worst] = W[nw - 1];
       --nw;
@@ -136,8 +136,8 @@ bool SolveMinNormQp(const std::vector<ContactPlane>& planes, const Vec3& x0, Vec
     x += alpha * p;
     if (blocking >= 0 && nw < 3) W[nw++] = blocking;
   }
+  // The cap: the last feasible iterate.
   *x_out = x;
-  return false;
 }
 
 // ---------------------------------------------------------------------------

@@ -82,11 +82,13 @@ class PdQueryData {
 /// identity.
 inline const Pose kX_BB = Pose::Identity();
 
-/// Solves min |x|^2 subject to n_i . x >= b_i exactly (primal active set
-/// from the feasible point `x0`; at most three independent constraints are
-/// active in 3-D). Returns false if the iteration cap was reached (x then
-/// holds the last feasible iterate).
-bool SolveMinNormQp(const std::vector<ContactPlane>& planes, const Vec3& x0, Vec3* x);
+/// Solves min |x|^2 subject to n_i . x >= b_i (primal active set from the
+/// feasible point `x0`; at most three independent constraints are active in
+/// 3-D). *x is the exact minimiser or, should the iteration cap (64 + 4 per
+/// plane) be reached on a degenerate plane set, the last feasible iterate.
+/// Both serve PDt's callers alike: any feasible point is a valid target for
+/// the next sweep, which the iteration then checks for improvement.
+void SolveMinNormQp(const std::vector<ContactPlane>& planes, const Vec3& x0, Vec3* x);
 
 /// Translational PD of probe A at X_WA against body B at X_WB.
 void ComputePdt(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, const Pose& X_WB,
