@@ -22,6 +22,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from readme_markers import marked_blocks  # tests/readme_markers.py, beside this file
+
 SOURCE_DIR = Path(__file__).resolve().parent.parent
 
 # NAME: (test binary under BUILD_DIR/tests, --gtest_filter)
@@ -65,43 +67,25 @@ def printed_rows(build_dir, name):
 def regenerate(text, build_dir):
     """The README with every marked table's rows as the tests print them."""
     lines = text.split("\n")
-    out = []
-    seen = set()
-    i = 0
-    while i < len(lines):
-        m = MARKER.match(lines[i])
-        if not m:
-            out.append(lines[i])
-            i += 1
-            continue
-        name, kind = m.groups()
-        if kind != "begin":
-            sys.exit(f"update_tables: line {i + 1}: an end marker of '{name}' without its begin")
-        if name not in TABLES:
-            sys.exit(f"update_tables: line {i + 1}: no test prints table '{name}' "
-                     f"(known: {', '.join(TABLES)})")
-        end = next((j for j in range(i + 1, len(lines))
-                    if (e := MARKER.match(lines[j])) and e.groups() == (name, "end")), None)
-        if end is None:
-            sys.exit(f"update_tables: line {i + 1}: table '{name}' has no end marker")
-        body = lines[i + 1:end]
+    blocks, problems = marked_blocks(lines, MARKER)
+    problems += [f"line {b + 1}: no test prints table '{name}' (known: {', '.join(TABLES)})"
+                 for name, (b, _) in blocks.items() if name not in TABLES]
+    missing = set(TABLES) - set(blocks)
+    if missing:
+        problems.append(f"no markers for table(s) {', '.join(sorted(missing))}")
+    if problems:
+        sys.exit("update_tables: " + "\n  ".join(problems))
+    # From the last block up, so that earlier line indices stay valid.
+    for name, (b, e) in sorted(blocks.items(), key=lambda kv: -kv[1][0]):
+        body = lines[b + 1:e]
         sep = next((k for k, line in enumerate(body) if SEPARATOR.match(line)), None)
         if sep is None:
-            sys.exit(f"update_tables: line {i + 1}: table '{name}' has no header (|---|) line")
+            sys.exit(f"update_tables: line {b + 1}: table '{name}' has no header (|---|) line")
         trailing = len(body)
         while trailing > sep + 1 and not body[trailing - 1].strip():
             trailing -= 1
-        out.append(lines[i])
-        out.extend(body[:sep + 1])
-        out.extend(printed_rows(build_dir, name))
-        out.extend(body[trailing:])
-        out.append(lines[end])
-        seen.add(name)
-        i = end + 1
-    missing = set(TABLES) - seen
-    if missing:
-        sys.exit(f"update_tables: no markers for table(s) {', '.join(sorted(missing))}")
-    return "\n".join(out)
+        lines[b + 1:e] = body[:sep + 1] + printed_rows(build_dir, name) + body[trailing:]
+    return "\n".join(lines)
 
 
 def main():

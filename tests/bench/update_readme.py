@@ -37,6 +37,9 @@ import sys
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from readme_markers import marked_blocks  # noqa: E402  (tests/readme_markers.py)
+
 SOURCE_DIR = Path(__file__).resolve().parent.parent.parent
 README = SOURCE_DIR / "tests" / "bench" / "README.md"
 GENERATOR = "tests/bench/update_readme.py"
@@ -942,30 +945,8 @@ def inputs_present(root, name):
 
 
 def find_blocks(text):
-    """{name: (begin line index, end line index)}; exits naming the first bad marker."""
-    lines = text.split("\n")
-    blocks, open_name, open_at = {}, None, None
-    problems = []
-    for i, line in enumerate(lines):
-        m = MARKER.match(line)
-        if not m:
-            continue
-        name, kind = m.groups()
-        if kind == "begin":
-            if open_name:
-                problems.append(f"line {i + 1}: '{name}:begin' inside '{open_name}' "
-                                f"(opened at line {open_at + 1})")
-            elif name in blocks:
-                problems.append(f"line {i + 1}: a second '{name}' table")
-            open_name, open_at = name, i
-        else:
-            if name != open_name:
-                problems.append(f"line {i + 1}: '{name}:end' without its begin")
-                continue
-            blocks[name] = (open_at, i)
-            open_name = None
-    if open_name:
-        problems.append(f"line {open_at + 1}: '{open_name}:begin' has no end marker")
+    """{name: (begin line index, end line index)} and the problems found."""
+    blocks, problems = marked_blocks(text.split("\n"), MARKER)
     for name in blocks:
         if name not in TABLES and name not in FOREIGN:
             problems.append(f"line {blocks[name][0] + 1}: no benchmark renders table '{name}' "
