@@ -1,4 +1,4 @@
-// The device-side network Session (issue 6): one HapticService.Couple stream
+// The device-side network Session: one HapticService.Couple stream
 // between a ServoLoop and the server, kept alive across server restarts.
 //
 //   Session session(options);
