@@ -1,4 +1,4 @@
-// The device side end to end over gRPC (issue 6): a hapticpd server
+// The device side end to end over gRPC: a hapticpd server
 // in-process on 127.0.0.1, a Session, and a ServoLoop closed through the
 // simulated hand, ticked at 1 kHz in real time by the test thread. The thin
 // plate never flips the force while the hand is inside it; a closed path in

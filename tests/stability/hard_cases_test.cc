@@ -1,5 +1,5 @@
-// Numerical stability of PDt and PDg on a catalogue of hard geometric cases
-// (issue 8). Each case is a slow sweep of the probe through the hard
+// Numerical stability of PDt and PDg on a catalogue of hard geometric
+// cases. Each case is a slow sweep of the probe through the hard
 // configuration with one query session (motion coherence on, as in the
 // servo loop). For every case and both methods:
 //   * every result is finite and no query fails;
