@@ -1,7 +1,10 @@
 #include "pd/convex.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numbers>
+#include <utility>
 
 namespace hapticpd::pd {
 
@@ -47,11 +50,115 @@ Placed Place(const Mesh& m, const Pose& X) {
   return p;
 }
 
-double MinAlong(const std::vector<Vec3>& v, const Vec3& u) {
-  double m = std::numeric_limits<double>::infinity();
-  for (const Vec3& x : v) m = std::min(m, u.dot(x));
-  return m;
-}
+// The edges' arcs on the Gauss map, in a tree of bounding caps, so that
+// only edge pairs whose caps meet reach the arc-crossing test. An edge's arc
+// runs between its two faces' normals (the minor arc: a convex polytope's
+// dihedral angles are below 180 degrees); its cap is centred on the arc's
+// midpoint with half the arc's angle as radius.
+class ArcTree {
+ public:
+  struct Arc {
+    Vec3 n0, n1;  // the arc's end points (unit)
+    Vec3 c;       // cap centre (unit)
+    double r;     // cap radius (rad)
+    std::size_t edge;
+  };
+  struct Node {
+    Vec3 c;                     // cap centre (unit)
+    double r;                   // cap radius (rad), covering every arc below
+    int first, count;           // leaf: arcs [first, first + count)
+    int left = -1, right = -1;  // inner node: children
+    bool leaf() const { return left < 0; }
+  };
+
+  /// `sign` flips the normals (B's arcs are those of its negated normals).
+  ArcTree(const std::vector<Edge>& edges, const std::vector<Vec3>& n, double sign) {
+    arcs_.reserve(edges.size());
+    for (std::size_t e = 0; e < edges.size(); ++e) {
+      const Vec3 n0 = sign * n[edges[e].f[0]];
+      const Vec3 n1 = sign * n[edges[e].f[1]];
+      if (n0.cross(n1).squaredNorm() < 1e-24) continue;  // flat edge: no arc
+      const Vec3 mid = n0 + n1;
+      const double len = mid.norm();
+      if (len > 1e-9) {
+        arcs_.push_back({n0, n1, mid / len, 0.5 * Angle(n0, n1), e});
+      } else {
+        arcs_.push_back({n0, n1, n0, std::numbers::pi, e});
+      }
+    }
+    nodes_.reserve(2 * arcs_.size() / kLeafSize + 2);
+    if (!arcs_.empty()) Build(0, static_cast<int>(arcs_.size()));
+  }
+
+  const std::vector<Arc>& arcs() const { return arcs_; }
+  const std::vector<Node>& nodes() const { return nodes_; }
+
+  /// Whether caps (c0, r0) and (c1, r1) can share a point; generous by a
+  /// small angle so that rounding never drops a crossing.
+  static bool Meet(const Node& a, const Node& b) {
+    const double reach = a.r + b.r + 1e-7;
+    return reach >= std::numbers::pi || a.c.dot(b.c) >= std::cos(reach);
+  }
+
+ private:
+  static constexpr int kLeafSize = 8;
+
+  // An upper bound on the angle between unit vectors a and b, tight for
+  // small angles: 2 asin(h) with h half the chord, and asin(h) <= h + h^3 /
+  // (6 (1 - h^2)) (every term of asin's series past the first has a
+  // coefficient of at most 1/6). Larger angles get the exact value.
+  static double Angle(const Vec3& a, const Vec3& b) {
+    const double h = 0.5 * (a - b).norm();
+    if (h < 0.5) return 2 * (h + h * h * h / (6 * (1 - h * h))) + 1e-12;
+    return std::atan2(a.cross(b).norm(), a.dot(b));
+  }
+
+  int Build(int first, int count) {
+    const int index = static_cast<int>(nodes_.size());
+    nodes_.push_back({Vec3::UnitZ(), std::numbers::pi, first, count});
+    Vec3 mean = Vec3::Zero();
+    Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+    for (int i = first; i < first + count; ++i) {
+      mean += arcs_[i].c;
+      lo = lo.cwiseMin(arcs_[i].c);
+      hi = hi.cwiseMax(arcs_[i].c);
+    }
+    const bool split = count > kLeafSize;
+    if (split) {
+      int axis;
+      (hi - lo).maxCoeff(&axis);
+      const int half = count / 2;
+      std::nth_element(arcs_.begin() + first, arcs_.begin() + first + half,
+                       arcs_.begin() + first + count,
+                       [axis](const Arc& a, const Arc& b) { return a.c[axis] < b.c[axis]; });
+      const int left = Build(first, half);
+      const int right = Build(first + half, count - half);
+      nodes_[index].left = left;
+      nodes_[index].right = right;
+    }
+    // The cap: around the mean direction, wide enough for the children's
+    // caps (inner node) or the arcs' own (leaf).
+    if (mean.norm() > 1e-6 * count) {
+      const Vec3 c = mean.normalized();
+      double r = 0;
+      if (split) {
+        for (const int k : {nodes_[index].left, nodes_[index].right}) {
+          r = std::max(r, Angle(c, nodes_[k].c) + nodes_[k].r);
+        }
+      } else {
+        for (int i = first; i < first + count; ++i) {
+          r = std::max(r, Angle(c, arcs_[i].c) + arcs_[i].r);
+        }
+      }
+      nodes_[index].c = c;
+      nodes_[index].r = std::min(r, std::numbers::pi);
+    }
+    return index;
+  }
+
+  std::vector<Arc> arcs_;
+  std::vector<Node> nodes_;
+};
 
 }  // namespace
 
@@ -69,46 +176,90 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const Pose& X_WA, const Mesh& B, const 
       best_u = u;
     }
   };
-  // Faces of B: u = n_B (outward of B), B's support is the face itself.
-  const auto& TB = B.triangles();
-  for (std::size_t f = 0; f < TB.size(); ++f) {
-    const Vec3& n = b.n[f];
-    if (n.squaredNorm() == 0) continue;
-    consider(n, MinAlong(a.v, n) - n.dot(b.v[TB[f][0]]));
-  }
-  // Faces of A: u = -n_A; A's support along u is the face itself.
-  const auto& TA = A.triangles();
-  for (std::size_t f = 0; f < TA.size(); ++f) {
-    const Vec3 u = -a.n[f];
-    if (u.squaredNorm() == 0) continue;
-    consider(u, u.dot(a.v[TA[f][0]]) + MinAlong(b.v, -u));
-  }
-  // Edge pairs that form Minkowski faces.
-  for (const Edge& ea : A.edges()) {
-    const Vec3& n1 = a.n[ea.f[0]];
-    const Vec3& n2 = a.n[ea.f[1]];
+  // Face axes. A face's separation needs the other body's support (a scan
+  // of its vertices); the vertex that gave the last support bounds it from
+  // above in one product, which settles most faces (neighbouring faces have
+  // nearby supports, and most are far below the best).
+  auto faces = [&](const Placed& self, const std::vector<Triangle>& T, double sign,
+                   const Placed& other) {
+    std::size_t hint = 0;
+    for (std::size_t f = 0; f < T.size(); ++f) {
+      // Separation along u = sign n: the other body's support below minus
+      // the face's own plane (sign +1: faces of B, the other is A; sign -1:
+      // faces of A, the other is B, seen along -n).
+      const Vec3 u = sign * self.n[f];
+      if (u.squaredNorm() == 0) continue;
+      const double plane = u.dot(self.v[T[f][0]]);
+      const double bound = sign * (u.dot(other.v[hint]) - plane);
+      if (bound <= best_sep) continue;
+      double m = std::numeric_limits<double>::infinity();
+      for (std::size_t i = 0; i < other.v.size(); ++i) {
+        const double x = sign * u.dot(other.v[i]);
+        if (x < m) {
+          m = x;
+          hint = i;
+        }
+      }
+      consider(u, m - sign * plane);
+    }
+  };
+  // Faces of B: u = n_B (outward of B), B's support is the face itself, A's
+  // is its lowest vertex along u.
+  faces(b, B.triangles(), 1.0, a);
+  // Faces of A: u = -n_A; A's support along u is the face itself, B's is its
+  // highest vertex along u.
+  faces(a, A.triangles(), -1.0, b);
+  // Edge pairs that form Minkowski faces: their arcs cross on the Gauss map
+  // (of A's normals and B's negated normals). The cap trees hand over only
+  // pairs whose caps meet.
+  const ArcTree arcs_a(A.edges(), a.n, 1.0), arcs_b(B.edges(), b.n, -1.0);
+  const auto& EA = A.edges();
+  const auto& EB = B.edges();
+  auto edge_pair = [&](const ArcTree::Arc& x, const ArcTree::Arc& y) {
+    // Arcs (n1, n2) of A and (c, d) = (-m1, -m2) of B must cross.
+    const Vec3 &n1 = x.n0, &n2 = x.n1, &c = y.n0, &d = y.n1;
+    const Vec3 bxa = n2.cross(n1);
+    const Vec3 dxc = d.cross(c);
+    const double cba = c.dot(bxa), dba = d.dot(bxa);
+    const double adc = n1.dot(dxc), bdc = n2.dot(dxc);
+    if (!(cba * dba < 0 && adc * bdc < 0 && cba * bdc > 0)) return;
+    const Edge& ea = EA[x.edge];
+    const Edge& eb = EB[y.edge];
     const Vec3 pa = a.v[ea.v[0]];
     const Vec3 da = a.v[ea.v[1]] - pa;
-    if (n1.cross(n2).squaredNorm() < 1e-24) continue;  // flat edge
-    for (const Edge& eb : B.edges()) {
-      // Arcs (n1, n2) of A and (-m1, -m2) of B must cross on the sphere.
-      const Vec3 c = -b.n[eb.f[0]];
-      const Vec3 d = -b.n[eb.f[1]];
-      if (c.cross(d).squaredNorm() < 1e-24) continue;
-      const Vec3 bxa = n2.cross(n1);
-      const Vec3 dxc = d.cross(c);
-      const double cba = c.dot(bxa), dba = d.dot(bxa);
-      const double adc = n1.dot(dxc), bdc = n2.dot(dxc);
-      if (!(cba * dba < 0 && adc * bdc < 0 && cba * bdc > 0)) continue;
-      const Vec3 pb = b.v[eb.v[0]];
-      const Vec3 db = b.v[eb.v[1]] - pb;
-      Vec3 u = da.cross(db);
-      const double len = u.norm();
-      if (len < 1e-12 * da.norm() * db.norm()) continue;
-      u /= len;
-      // Orient from B to A: A's outward normals there point against u.
-      if (u.dot(n1 + n2) > 0) u = -u;
-      consider(u, u.dot(pa - pb));
+    const Vec3 pb = b.v[eb.v[0]];
+    const Vec3 db = b.v[eb.v[1]] - pb;
+    Vec3 u = da.cross(db);
+    const double len = u.norm();
+    if (len < 1e-12 * da.norm() * db.norm()) return;
+    u /= len;
+    // Orient from B to A: A's outward normals there point against u.
+    if (u.dot(n1 + n2) > 0) u = -u;
+    consider(u, u.dot(pa - pb));
+  };
+  if (!arcs_a.nodes().empty() && !arcs_b.nodes().empty()) {
+    const auto& NA = arcs_a.nodes();
+    const auto& NB = arcs_b.nodes();
+    std::vector<std::pair<int, int>> stack{{0, 0}};
+    while (!stack.empty()) {
+      const auto [ia, ib] = stack.back();
+      stack.pop_back();
+      const ArcTree::Node& na = NA[ia];
+      const ArcTree::Node& nb = NB[ib];
+      if (!ArcTree::Meet(na, nb)) continue;
+      if (na.leaf() && nb.leaf()) {
+        for (int i = na.first; i < na.first + na.count; ++i) {
+          for (int j = nb.first; j < nb.first + nb.count; ++j) {
+            edge_pair(arcs_a.arcs()[i], arcs_b.arcs()[j]);
+          }
+        }
+      } else if (nb.leaf() || (!na.leaf() && na.r >= nb.r)) {
+        stack.push_back({na.left, ib});
+        stack.push_back({na.right, ib});
+      } else {
+        stack.push_back({ia, nb.left});
+        stack.push_back({ia, nb.right});
+      }
     }
   }
   ConvexPdtResult r;

@@ -615,9 +615,11 @@ void PdtCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
     have_best = true;
     data->best_features = data->ccd.features;
   }
+  bool exact = false;
   if (!have_best && request.convex_shortcut && A.convex() && B.convex()) {
-    // Cold start between convex polytopes: the exact answer directly (the
-    // iteration below only confirms it).
+    // Cold start between convex polytopes: the exact answer directly. The
+    // iteration would only confirm it (each of its sweeps meets every
+    // contact feature again), so it is skipped.
     const ConvexPdtResult cr = ConvexPdt(A.mesh(), X_BA, B.mesh(), kX_BB);
     if (cr.overlapping) {
       ProximityRequest preq;
@@ -628,11 +630,14 @@ void PdtCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
       data->best_features.swap(pres.pairs);
       best = cr.translation_W;
       have_best = true;
+      exact = true;
     }
   }
   int iterations = 0;
   PdStatus status = PdStatus::kPenetratingCapReached;
-  if (have_best) {
+  if (exact) {
+    status = PdStatus::kPenetratingSolved;
+  } else if (have_best) {
     status = Refine(c, &best, &iterations);
   } else if (!ColdSearch(c, &best, &status, &iterations)) {
     result->failure = "no contact found along the out-projection from a free start";
