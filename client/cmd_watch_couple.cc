@@ -56,7 +56,9 @@ void RunWatch(const WatchOptions& o) {
         std::cout << " [" << p.session_id() << " depth " << p.depth() << "]";
       }
     }
-    std::cout << " (dropped " << ev.frames_dropped() << ")\n";
+    // Flushed per line: a pipe or file would otherwise hold the lines until
+    // exit, and Ctrl-C (the usual end of a watch) would lose them.
+    std::cout << " (dropped " << ev.frames_dropped() << ")" << std::endl;
     if (o.count > 0 && ++n >= o.count) {
       ctx->TryCancel();
       break;

@@ -118,12 +118,13 @@ class ServeProcess {
   int exit_code_ = -1;
 };
 
-/// Runs `hapticpd ARGS` (shell text) with stdin from /dev/null.
-RunResult Cli(const std::string& args, const fs::path& dir) {
+/// Runs `hapticpd ARGS` (shell text) with stdin from /dev/null, behind the
+/// command `wrapper` (shell text, e.g. "timeout 2") when one is given.
+RunResult Cli(const std::string& args, const fs::path& dir, const std::string& wrapper = "") {
   static int n = 0;
   const fs::path err = dir / ("cli_" + std::to_string(n++) + ".err");
   const std::string cmd =
-      std::string("'") + HAPTICPD_CLI_PATH + "' " + args + " </dev/null 2>'" + err.string() + "'";
+      wrapper + " '" + HAPTICPD_CLI_PATH + "' " + args + " </dev/null 2>'" + err.string() + "'";
   RunResult r;
   FILE* pipe = ::popen(cmd.c_str(), "r");
   if (!pipe) return r;
@@ -172,6 +173,10 @@ TEST(ServeE2eTest, CliDrivesAServerThatStopsCleanlyOnSigterm) {
   r = Cli("watch " + s + " --count 3 --rate 100", srv.dir());
   EXPECT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("snapshot: 2 bodies"), std::string::npos) << r.out;
+  // Ended by Ctrl-C while writing into a pipe, watch has written every
+  // event line it printed (no line waits in a buffer when the signal comes).
+  r = Cli("watch " + s + " --rate 10", srv.dir(), "timeout -s INT 2");
+  EXPECT_NE(r.out.find("snapshot: 2 bodies"), std::string::npos) << r.out << r.err;
 
   // Errors: non-zero exit, one line naming the status and the field.
   r = Cli("remove " + s + " --body nope", srv.dir());
