@@ -228,10 +228,11 @@ enum class SweepOutcome : std::uint8_t { kStartColliding, kHit, kMiss };
 // kStartColliding, decided inside the same traversal); without, it must be
 // known to be free.
 SweepOutcome SweepFrom(PdtContext& c, const Vec3& x_from, const Vec3& x_to, Vec3* x_contact,
-                       bool check_start) {
+                       bool check_start, bool start_likely_overlaps = false) {
   CcdRequest req;
   req.feature_tolerance = c.eps;
   req.check_start = check_start;
+  req.start_crossing_first = start_likely_overlaps;
   ++c.ccd_queries;
   if (!TranslationalCcd(c.A, Shifted(c.X_BA, x_from), x_to - x_from, c.B, kX_BB, req, &c.data.ccd,
                         &c.data.scratch)) {
@@ -535,7 +536,8 @@ bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
       // Only a contact shallower than the best answer by the iteration's own
       // improvement tolerance is worth a refinement.
       const double reach = best_norm * (1 - c.request.improvement_tolerance);
-      if (SweepFrom(c, u * reach, Vec3::Zero(), &x, true) != SweepOutcome::kHit) {
+      // Most of these starts overlap (a shallower answer is rare).
+      if (SweepFrom(c, u * reach, Vec3::Zero(), &x, true, true) != SweepOutcome::kHit) {
         continue;
       }
       d.cold_answer_features.swap(d.best_features);  // keep the best answer's

@@ -208,6 +208,14 @@ struct CcdRequest {
   /// is much cheaper than a separate Collide. When the start overlaps, the
   /// query stops with `start_colliding` set and no time of impact.
   bool check_start = false;
+  /// Translational CCD with check_start only: before the sweep, look for a
+  /// triangle pair crossing at the start by a plain depth-first search
+  /// (axis-aligned boxes on B's axes, no sweep keys, no contact events),
+  /// giving up after a few leaf pairs. For callers whose starts usually
+  /// overlap (the PDt cold search's escape directions): one crossing drops
+  /// such a start at a fraction of the sweep's cost. The answer is the same
+  /// either way.
+  bool start_crossing_first = false;
   /// Translational CCD only, with a feature tolerance: on a hit also list in
   /// CcdResult::near_pairs every triangle pair whose boxes, inflated by the
   /// feature tolerance, meet by the time of impact. Every triangle pair

@@ -493,17 +493,21 @@ TEST(TranslationalCcd, StartCheckAgreesWithFclAndKeepsTheTimeOfImpact) {
   // in random directions: with check_start the CCD must call a start
   // colliding exactly when FCL finds the surfaces intersecting (or, for the
   // one containment start below, when the spoon lies wholly inside), and on
-  // a free start give the same answer as the CCD without the check.
+  // a free start give the same answer as the CCD without the check; the
+  // depth-first crossing search first (start_crossing_first) changes none
+  // of it.
   const ModelPtr a = MakeModel(shapes::Spoon());
   const ModelPtr b = MakeModel(shapes::Cup());
   const FclModel fa(a->mesh()), fb(b->mesh());
   std::mt19937_64 rng(testing::TestSeed() + 3);
   std::normal_distribution<double> n(0, 1);
   QueryScratch s;
-  CcdResult checked, plain;
+  CcdResult checked, plain, first;
   CcdRequest req_checked, req_plain;
   req_checked.check_start = true;
   req_checked.feature_tolerance = req_plain.feature_tolerance = 1e-5;
+  CcdRequest req_first = req_checked;
+  req_first.start_crossing_first = true;
   const int count = testing::TestCount(80);
   int colliding = 0, free_hits = 0;
   for (int i = 0; i < count; ++i) {
@@ -515,6 +519,11 @@ TEST(TranslationalCcd, StartCheckAgreesWithFclAndKeepsTheTimeOfImpact) {
     const bool fcl = FclCollide(fa, X0, fb, Pose::Identity());
     const bool hit = TranslationalCcd(*a, X0, d, *b, Pose::Identity(), req_checked, &checked, &s);
     EXPECT_EQ(checked.start_colliding, fcl) << "pose " << i;
+    const bool hit_first = TranslationalCcd(*a, X0, d, *b, Pose::Identity(), req_first, &first, &s);
+    EXPECT_EQ(first.start_colliding, fcl) << "pose " << i;
+    EXPECT_EQ(hit_first, hit) << "pose " << i;
+    EXPECT_EQ(first.toi, checked.toi) << "pose " << i;
+    EXPECT_EQ(first.features.size(), checked.features.size()) << "pose " << i;
     if (fcl) {
       EXPECT_FALSE(hit);
       ++colliding;
@@ -538,6 +547,9 @@ TEST(TranslationalCcd, StartCheckAgreesWithFclAndKeepsTheTimeOfImpact) {
   EXPECT_FALSE(TranslationalCcd(*small, inside, Vec3(0.1, 0, 0), *big, Pose::Identity(),
                                 req_checked, &checked, &s));
   EXPECT_TRUE(checked.start_colliding);
+  EXPECT_FALSE(TranslationalCcd(*small, inside, Vec3(0.1, 0, 0), *big, Pose::Identity(), req_first,
+                                &first, &s));
+  EXPECT_TRUE(first.start_colliding);
 }
 
 TEST(TranslationalCcd, NearPairsHoldEveryTrianglePairWithinTheToleranceAtContact) {
