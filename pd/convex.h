@@ -22,7 +22,10 @@ struct ConvexPdtResult {
 };
 
 /// Exact PDt of convex A (pose X_WA) against convex B (X_WB).
-/// Cost O(F_A V_B + F_B V_A + E_A E_B).
+/// Cost: each face axis one product with the last support vertex, and a
+/// scan of the other body's vertices only where that bound does not rule
+/// it out; the edge pairs whose Gauss-map arcs' bounding caps meet (found
+/// by two cap trees built per call), instead of all E_A E_B.
 ConvexPdtResult ConvexPdt(const Mesh& A, const Pose& X_WA, const Mesh& B, const Pose& X_WB);
 
 }  // namespace hapticpd::pd
