@@ -59,6 +59,7 @@ class ArcTree {
  public:
   struct Arc {
     Vec3 n0, n1;  // the arc's end points (unit)
+    Vec3 plane;   // n1 x n0: the normal of the arc's great circle
     Vec3 c;       // cap centre (unit)
     double r;     // cap radius (rad)
     std::size_t edge;
@@ -77,13 +78,14 @@ class ArcTree {
     for (std::size_t e = 0; e < edges.size(); ++e) {
       const Vec3 n0 = sign * n[edges[e].f[0]];
       const Vec3 n1 = sign * n[edges[e].f[1]];
-      if (n0.cross(n1).squaredNorm() < 1e-24) continue;  // flat edge: no arc
+      const Vec3 plane = n1.cross(n0);
+      if (plane.squaredNorm() < 1e-24) continue;  // flat edge: no arc
       const Vec3 mid = n0 + n1;
       const double len = mid.norm();
       if (len > 1e-9) {
-        arcs_.push_back({n0, n1, mid / len, 0.5 * Angle(n0, n1), e});
+        arcs_.push_back({n0, n1, plane, mid / len, 0.5 * Angle(n0, n1), e});
       } else {
-        arcs_.push_back({n0, n1, n0, std::numbers::pi, e});
+        arcs_.push_back({n0, n1, plane, n0, std::numbers::pi, e});
       }
     }
     nodes_.reserve(2 * arcs_.size() / kLeafSize + 2);
@@ -93,8 +95,8 @@ class ArcTree {
   const std::vector<Arc>& arcs() const { return arcs_; }
   const std::vector<Node>& nodes() const { return nodes_; }
 
-  /// Whether caps (c0, r0) and (c1, r1) can share a point; generous by a
-  /// small angle so that rounding never drops a crossing.
+  /// Whether two nodes' caps can share a point; generous by a small angle
+  /// so that rounding never drops a crossing.
   static bool Meet(const Node& a, const Node& b) {
     const double reach = a.r + b.r + 1e-7;
     return reach >= std::numbers::pi || a.c.dot(b.c) >= std::cos(reach);
@@ -218,8 +220,8 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const Pose& X_WA, const Mesh& B, const 
   auto edge_pair = [&](const ArcTree::Arc& x, const ArcTree::Arc& y) {
     // Arcs (n1, n2) of A and (c, d) = (-m1, -m2) of B must cross.
     const Vec3 &n1 = x.n0, &n2 = x.n1, &c = y.n0, &d = y.n1;
-    const Vec3 bxa = n2.cross(n1);
-    const Vec3 dxc = d.cross(c);
+    const Vec3& bxa = x.plane;  // n2 x n1
+    const Vec3& dxc = y.plane;  // d x c
     const double cba = c.dot(bxa), dba = d.dot(bxa);
     const double adc = n1.dot(dxc), bdc = n2.dot(dxc);
     if (!(cba * dba < 0 && adc * bdc < 0 && cba * bdc > 0)) return;

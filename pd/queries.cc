@@ -290,6 +290,16 @@ inline bool StaysSide(double s0, double shift, double margin) {
   return (s0 > margin && s1 > margin) || (s0 < -margin && s1 < -margin);
 }
 
+// Whether A's triangle fa (from a triangle cache) and B's triangle tb have
+// disjoint boxes, by more than `slack`: then they cannot intersect.
+template <typename ACache>
+inline bool TriangleBoxesApart(ACache* a_tris, Index fa, const TriB& tb, double slack) {
+  const Vec3 b_lo = tb.v[0].cwiseMin(tb.v[1]).cwiseMin(tb.v[2]);
+  const Vec3 b_hi = tb.v[0].cwiseMax(tb.v[1]).cwiseMax(tb.v[2]);
+  return ((a_tris->Lo(fa).array() - slack) > b_hi.array()).any() ||
+         (b_lo.array() > (a_tris->Hi(fa).array() + slack)).any();
+}
+
 // Depth-first pair traversal. `overlap(na, nb)` prunes node pairs;
 // `leaf(fa, fb)` handles a triangle pair and returns false to stop.
 template <typename OverlapFn, typename LeafFn>
@@ -670,13 +680,7 @@ bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
       [&](Index fa, Index fb) {
         const TriB& ta = a_tris.Tri(fa);
         const TriB tb = TriangleOfB(mb, fb);
-        // Disjoint triangle boxes (with round-off slack) cannot intersect.
-        const Vec3 b_lo = tb.v[0].cwiseMin(tb.v[1]).cwiseMin(tb.v[2]);
-        const Vec3 b_hi = tb.v[0].cwiseMax(tb.v[1]).cwiseMax(tb.v[2]);
-        if (((a_tris.Lo(fa).array() - box_slack) > b_hi.array()).any() ||
-            (b_lo.array() > (a_tris.Hi(fa).array() + box_slack)).any()) {
-          return true;
-        }
+        if (TriangleBoxesApart(&a_tris, fa, tb, box_slack)) return true;
         if (!internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
           return true;
         }
@@ -1039,92 +1043,60 @@ inline bool SweptPairEvents(const TriB& ta, std::uint8_t own_a, const TriB& tb, 
 
 }  // namespace
 
-// A depth-first search for a triangle pair crossing at the sweep's start:
-// A's node boxes on B's axes (the rotation cache's, shared by the query's
-// sweeps, moved by the start translation t) against B's, by B's three face
-// axes only (a superset of the overlapping pairs), and the crossing test on
-// the triangles of each leaf pair. True at the first crossing (remembered as
-// a witness); false when none turned up within `max_leaf_pairs` leaf pairs,
-// which says nothing.
-// Whether triangle q lies strictly on one side of the plane of triangle p
-// (unit normal n), by more than a round-off margin.
-inline bool OneSide(const Vec3& n, const TriB& p, const TriB& q) {
-  const double margin = 1e-12 * (1.0 + p.v[0].cwiseAbs().maxCoeff());
-  const double s0 = n.dot(q.v[0] - p.v[0]), s1 = n.dot(q.v[1] - p.v[0]),
-               s2 = n.dot(q.v[2] - p.v[0]);
-  return (s0 > margin && s1 > margin && s2 > margin) ||
-         (s0 < -margin && s1 < -margin && s2 < -margin);
-}
-
 // Leaf pairs StartCrossingFirst may spend before leaving the start to the
 // sweep.
 constexpr int kStartCrossingLeafPairs = 256;
 
+// A depth-first search for a triangle pair crossing at the sweep's start:
+// A's node boxes (the rotation cache's, shared by the query's sweeps, moved
+// by the start translation t) against B's on both bodies' face axes, then
+// the triangles' boxes, their planes and the crossing test. True at the
+// first crossing (remembered as a witness); false when none turned up within
+// `max_leaf_pairs` leaf pairs, which says nothing.
 bool StartCrossingFirst(const GeometryModel& A, const GeometryModel& B, const Mat3& R,
                         const Vec3& t, RotationCache* a_tris, QueryScratch* scratch,
                         int max_leaf_pairs) {
-  const auto& NA = A.bvh().nodes();
-  const auto& NB = B.bvh().nodes();
-  const auto& PA = A.bvh().primitives();
-  const auto& PB = B.bvh().primitives();
-  if (NA.empty() || NB.empty()) return false;
+  if (A.bvh().nodes().empty() || B.bvh().nodes().empty()) return false;
   const Mesh& mb = B.mesh();
   const double slack =
       1e-12 * (1.0 + t.cwiseAbs().maxCoeff() + mb.bounds().hi.cwiseAbs().maxCoeff() +
                mb.bounds().lo.cwiseAbs().maxCoeff());
-  const Vec3 rtt = R.transpose() * t;
-  auto& stack = scratch->stack;
-  stack.clear();
-  stack.emplace_back(0, 0);
+  const Vec3 rtt = R.transpose() * t;  // A's origin offset on A's axes
   int leaves = 0;
-  while (!stack.empty()) {
-    const auto [ia, ib] = stack.back();
-    stack.pop_back();
-    const BvhNode& na = NA[ia];
-    const BvhNode& nb = NB[ib];
-    const internal::RotatedBox& ra = a_tris->NodeA(na);
-    if ((((ra.c + t - nb.center).cwiseAbs() - ra.r - nb.half).array() > slack).any()) continue;
-    // A's face axes: the offset on A's axes, a.c + R^T t - R^T b.c.
-    const internal::RotatedBox& rb = a_tris->NodeB(nb);
-    if ((((na.center + rtt - rb.c).cwiseAbs() - na.half - rb.r).array() > slack).any()) continue;
-    if (!na.leaf() || !nb.leaf()) {
-      if (SplitA(na, nb)) {
-        stack.emplace_back(na.first, ib);
-        stack.emplace_back(na.first + 1, ib);
-      } else {
-        stack.emplace_back(ia, nb.first);
-        stack.emplace_back(ia, nb.first + 1);
-      }
-      continue;
-    }
-    if (++leaves > max_leaf_pairs) break;
-    for (Index i = 0; i < na.count; ++i) {
-      const Index fa = PA[na.first + i];
-      const TriB& ta = a_tris->Tri(fa);
-      const Vec3& a_lo = a_tris->Lo(fa);
-      const Vec3& a_hi = a_tris->Hi(fa);
-      for (Index j = 0; j < nb.count; ++j) {
-        const Index fb = PB[nb.first + j];
-        const TriB tb = TriangleOfB(mb, fb);
-        const Vec3 b_lo = tb.v[0].cwiseMin(tb.v[1]).cwiseMin(tb.v[2]);
-        const Vec3 b_hi = tb.v[0].cwiseMax(tb.v[1]).cwiseMax(tb.v[2]);
-        if (((a_lo.array() - slack) > b_hi.array()).any() ||
-            ((b_lo.array() - slack) > a_hi.array()).any()) {
-          continue;
+  bool crossing = false;
+  TraversePairs(
+      A.bvh(), B.bvh(), scratch,
+      [&](const BvhNode& na, const BvhNode& nb) {
+        if (leaves > max_leaf_pairs) return false;  // spent: the stack drains
+        // B's face axes, then A's (the offset a.c + R^T t - R^T b.c).
+        const internal::RotatedBox& ra = a_tris->NodeA(na);
+        if ((((ra.c + t - nb.center).cwiseAbs() - ra.r - nb.half).array() > slack).any()) {
+          return false;
         }
+        const internal::RotatedBox& rb = a_tris->NodeB(nb);
+        if ((((na.center + rtt - rb.c).cwiseAbs() - na.half - rb.r).array() > slack).any()) {
+          return false;
+        }
+        return !(na.leaf() && nb.leaf()) || ++leaves <= max_leaf_pairs;
+      },
+      [&](Index fa, Index fb) {
+        const TriB& ta = a_tris->Tri(fa);
+        const TriB tb = TriangleOfB(mb, fb);
+        if (TriangleBoxesApart(a_tris, fa, tb, slack)) return true;
         // A triangle strictly on one side of the other's plane does not
         // cross it.
-        if (OneSide(a_tris->Normal(fa), ta, tb) || OneSide(mb.face_normals()[fb], tb, ta)) continue;
-        if (internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
-          RememberWitness(A, B, fa, fb, scratch);
-          stack.clear();
+        if (Sides(a_tris->Normal(fa), ta.v[0], tb, slack).far_all ||
+            Sides(mb.face_normals()[fb], tb.v[0], ta, slack).far_all) {
           return true;
         }
-      }
-    }
-  }
-  stack.clear();
-  return false;
+        if (!internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
+          return true;
+        }
+        RememberWitness(A, B, fa, fb, scratch);
+        crossing = true;
+        return false;
+      });
+  return crossing;
 }
 
 bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W,

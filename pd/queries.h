@@ -210,8 +210,8 @@ struct CcdRequest {
   bool check_start = false;
   /// Translational CCD with check_start only: before the sweep, look for a
   /// triangle pair crossing at the start by a plain depth-first search
-  /// (axis-aligned boxes on B's axes, no sweep keys, no contact events),
-  /// giving up after a few leaf pairs. For callers whose starts usually
+  /// (boxes on both bodies' face axes, no sweep keys, no contact events),
+  /// giving up after a few hundred leaf pairs. For callers whose starts usually
   /// overlap (the PDt cold search's escape directions): one crossing drops
   /// such a start at a fraction of the sweep's cost. The answer is the same
   /// either way.
