@@ -552,6 +552,28 @@ TEST(TranslationalCcd, StartCheckAgreesWithFclAndKeepsTheTimeOfImpact) {
   EXPECT_TRUE(first.start_colliding);
 }
 
+TEST(TranslationalCcd, StartCrossingFirstNeedsARealCrossing) {
+  // Two triangles whose boxes overlap and which each straddle the other's
+  // plane, yet do not meet: every cull of the depth-first crossing search
+  // passes, and only the exact crossing test tells the start is free.
+  const ModelPtr a = MakeModel(Mesh::FromArrays({Vec3(0, 0, 0), Vec3(1, 0, 0), Vec3(0, 1, 0)},
+                                                {Triangle{0, 1, 2}}, "flat triangle"));
+  const ModelPtr b =
+      MakeModel(Mesh::FromArrays({Vec3(0.8, 0.5, -1), Vec3(0.8, 0.5, 1), Vec3(1.5, 0.5, 0)},
+                                 {Triangle{0, 1, 2}}, "upright triangle"));
+  QueryScratch s;
+  CcdRequest req;
+  req.check_start = true;
+  req.start_crossing_first = true;
+  CcdResult r;
+  // Moving A along +y: its edge x + y = 1 reaches B's edge x = 0.8 at y = 0.5
+  // after 0.3.
+  EXPECT_TRUE(
+      TranslationalCcd(*a, Pose::Identity(), Vec3(0, 1, 0), *b, Pose::Identity(), req, &r, &s));
+  EXPECT_FALSE(r.start_colliding);
+  EXPECT_NEAR(r.toi, 0.3, 1e-9);
+}
+
 TEST(TranslationalCcd, NearPairsHoldEveryTrianglePairWithinTheToleranceAtContact) {
   // PDg checks its answers against these pairs instead of a full collision
   // query: every triangle pair closer than the feature tolerance at the
