@@ -248,6 +248,7 @@ void SceneModel::Apply(const json& msg) {
     for (const json& b : msg.at("bodies")) bodies_[b.at("id")] = b;
   } else if (type == "bodies" || type == "sessions") {
     auto& m = type == "bodies" ? bodies_ : sessions_;
+    if (type == "sessions") sessions_announced_ = true;
     for (const json& id : msg.at("removed")) {
       m.erase(id.get<std::string>());
       if (type == "sessions") status_.erase(id.get<std::string>());
@@ -261,7 +262,9 @@ void SceneModel::Apply(const json& msg) {
     probes_ = msg.at("probes");
   } else if (type == "telemetry") {
     for (const json& t : msg.at("sessions")) {
-      if (t.contains("device")) status_[t.at("id")] = t["device"];
+      const std::string& id = t.at("id").get_ref<const std::string&>();
+      if (sessions_announced_ && sessions_.count(id) == 0) continue;  // ended
+      if (t.contains("device")) status_[id] = t["device"];
     }
   }
 }

@@ -65,6 +65,10 @@ class SceneModel {
   std::uint32_t observers_ = 0;
   std::int64_t server_time_ns_ = 0;
   bool server_connected_ = false;
+  // The server announces sessions: telemetry then counts only for those
+  // announced. A batch sent before a session's removal may arrive after it
+  // (the bridge sends announcements first) and must not bring it back.
+  bool sessions_announced_ = false;
   std::string link_error_;
 };
 

@@ -25,6 +25,7 @@
 
 #include "client/viewer/http_server.h"
 #include "client/viewer/mesh_store.h"
+#include "client/viewer/scene_json.h"
 #include "client/viewer/viewer.h"
 #include "tests/server/server_harness.h"
 #include "tests/test_util.h"
@@ -609,6 +610,26 @@ TEST_F(BrowserQueues, ABrowserFarBehindGetsTheWholeSceneInsteadOfTheBacklog) {
   // Once it reads, the stalled browser gets a whole scene after what was in flight.
   EXPECT_TRUE(stalled.Until("scene", [](const json& m) { return m["n"] == 2; }));
   http.Stop();
+}
+
+// The bridge sends announcements before queued telemetry, so the last batch
+// of a session that ended can reach the model after the removal. It must not
+// bring the session back: a page that connects later would show it forever.
+TEST(SceneModelSessions, TelemetryAfterTheRemovalDoesNotBringTheSessionBack) {
+  viewer::SceneModel model("live");
+  model.Apply({{"type", "scene"}, {"bodies", json::array()}});
+  model.Apply({{"type", "sessions"},
+               {"added", json::array({json{{"id", "s1"}}})},
+               {"removed", json::array()}});
+  const json batch = {{"type", "telemetry"},
+                      {"sessions", json::array({json{{"id", "s1"}, {"device", "ok"}}})}};
+  model.Apply(batch);
+  EXPECT_EQ(model.FullScene()["status"].count("s1"), 1u);
+  model.Apply({{"type", "sessions"}, {"added", json::array()}, {"removed", {"s1"}}});
+  model.Apply(batch);  // sent before the removal, arrived after it
+  const json scene = model.FullScene();
+  EXPECT_TRUE(scene["sessions"].empty()) << scene.dump();
+  EXPECT_EQ(scene["status"].count("s1"), 0u) << scene.dump();
 }
 
 }  // namespace

@@ -389,6 +389,9 @@ function drawContacts(probes) {
 function applyTelemetry(m) {
   const now = performance.now();
   for (const t of m.sessions) {
+    // A batch the bridge sends after the session's removal (announcements go
+    // first) must not bring the ended session back.
+    if (sessionsFromServer && !sessions.has(t.id)) continue;
     const s = session(t.id);
     if (t.device) s.status = t.device;
     s.server = { update_rate_hz: t.update_rate_hz, revision: t.revision };
