@@ -285,6 +285,7 @@ json SceneModel::FullScene() const {
           {"error", link_error_},
           {"bodies", std::move(bodies)},
           {"sessions", std::move(sessions)},
+          {"sessions_announced", sessions_announced_},
           {"probes", probes_},
           {"status", std::move(status)}};
 }

@@ -630,6 +630,8 @@ TEST(SceneModelSessions, TelemetryAfterTheRemovalDoesNotBringTheSessionBack) {
   const json scene = model.FullScene();
   EXPECT_TRUE(scene["sessions"].empty()) << scene.dump();
   EXPECT_EQ(scene["status"].count("s1"), 0u) << scene.dump();
+  // A page that connects now learns that the server announces sessions.
+  EXPECT_EQ(scene["sessions_announced"], true) << scene.dump();
 }
 
 }  // namespace

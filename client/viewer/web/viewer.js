@@ -310,7 +310,7 @@ function applyScene(m) {
     const e = bodies.get(b.id);
     if (e && e.hash === b.mesh) setPose(e.obj, b.pose); else addBody(b);
   }
-  sessionsFromServer = sessionsFromServer || m.sessions.length > 0;
+  sessionsFromServer = sessionsFromServer || m.sessions_announced || m.sessions.length > 0;
   const sids = new Set(m.sessions.map(s => s.id));
   for (const p of m.probes) sids.add(p.id);
   for (const id of [...sessions.keys()]) if (!sids.has(id)) removeSession(id);
