@@ -6,7 +6,13 @@
 #include <grpcpp/health_check_service_interface.h>
 #include <grpcpp/security/server_credentials.h>
 
+#include <netdb.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -60,6 +66,48 @@ void SetServing(grpc::Server* server, bool serving) {
   health->SetServingStatus(serving);
   for (const char* name : {"hapticpd.v1.SceneService", "hapticpd.v1.HapticService"}) {
     health->SetServingStatus(name, serving);
+  }
+}
+
+// Whether a plain socket can bind `listen` (HOST:PORT, a numeric port other
+// than 0). gRPC reports a port in use only as a multi-line log record before
+// BuildAndStart fails; this check names the problem first. The socket is
+// closed at once (a race with another process is left to gRPC's own
+// failure). Addresses gRPC resolves itself (unix:, dns:, ...) and hosts
+// that do not resolve here are left to gRPC.
+void CheckListenAddress(const std::string& listen) {
+  const std::size_t colon = listen.rfind(':');
+  if (colon == std::string::npos || colon + 1 >= listen.size()) return;
+  std::string host = listen.substr(0, colon);
+  const std::string port = listen.substr(colon + 1);
+  if (port.find_first_not_of("0123456789") != std::string::npos || std::stol(port) == 0) return;
+  if (host.find(':') != std::string::npos && (host.front() != '[' || host.back() != ']')) return;
+  if (host.size() >= 2 && host.front() == '[') host = host.substr(1, host.size() - 2);
+  addrinfo hints{};
+  hints.ai_family = AF_UNSPEC;
+  hints.ai_socktype = SOCK_STREAM;
+  hints.ai_flags = AI_PASSIVE | AI_NUMERICSERV;
+  addrinfo* found = nullptr;
+  if (getaddrinfo(host.empty() ? nullptr : host.c_str(), port.c_str(), &hints, &found) != 0) return;
+  int error = 0;
+  for (const addrinfo* a = found; a != nullptr && error == 0; a = a->ai_next) {
+    const int fd = socket(a->ai_family, a->ai_socktype, a->ai_protocol);
+    if (fd < 0) continue;
+    const int one = 1;
+    setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    if (bind(fd, a->ai_addr, a->ai_addrlen) != 0 && (errno == EADDRINUSE || errno == EACCES)) {
+      error = errno;
+    }
+    close(fd);
+  }
+  freeaddrinfo(found);
+  if (error == EADDRINUSE) {
+    throw std::runtime_error("cannot listen on " + listen +
+                             ": address already in use (is another server running on that port?)");
+  }
+  if (error == EACCES) {
+    throw std::runtime_error("cannot listen on " + listen +
+                             ": permission denied (ports below 1024 need privileges)");
   }
 }
 
@@ -280,6 +328,7 @@ void HapticServer::Start() {
     m.core.shards = std::move(map);
     m.core.shard = o.shard;
   }
+  if (!o.listen.empty()) CheckListenAddress(o.listen);
   // Bound before the state is loaded, so that health checks see
   // NOT_SERVING (and every call UNAVAILABLE) until it is.
   m.core.loading.store(true);

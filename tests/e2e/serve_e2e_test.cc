@@ -238,6 +238,12 @@ TEST(ServeE2eTest, TokensAndBadStartOptions) {
     r = Cli("scene create lab --server " + addr + " --token t1", srv.dir());
     EXPECT_EQ(r.exit_code, 1);
     EXPECT_NE(r.err.find("PERMISSION_DENIED"), std::string::npos) << r.err;
+    // A second server on the same port: one line naming the problem, not
+    // gRPC's log record first.
+    r = Cli("serve --ephemeral --listen " + addr, probe.dir());
+    EXPECT_EQ(r.exit_code, 1);
+    EXPECT_EQ(r.err, "hapticpd: serve: cannot listen on " + addr +
+                         ": address already in use (is another server running on that port?)\n");
     EXPECT_EQ(srv.Stop(SIGTERM), 0);
   }
   RunResult r = Cli("serve --ephemeral --listen 0.0.0.0:0", probe.dir());

@@ -146,7 +146,8 @@ TEST(Lifecycle, ASecondServerOnAPortInUseDoesNotStart) {
     ADD_FAILURE() << "a second server started on port " << first.port();
   } catch (const std::runtime_error& e) {
     EXPECT_EQ(std::string(e.what()),
-              "cannot listen on " + opt.listen + " (address in use or invalid HOST:PORT?)");
+              "cannot listen on " + opt.listen +
+                  ": address already in use (is another server running on that port?)");
   }
   auto channel = grpc::CreateChannel("127.0.0.1:" + std::to_string(first.port()),
                                      grpc::InsecureChannelCredentials());
