@@ -739,13 +739,24 @@ def render_cold_directions(root):
         body.append([label, t["above_1_01"],
                      t["above_1_10"], f"{t['ratio_max']:.2f}", num(t["p50_us"]), num(t["p99_us"]),
                      g["above_1_01"], g["above_1_10"], num(g["p50_us"])])
+    note = []
+    main, again = root / "cold" / "cold.json", d / "directions141.json"
+    if main.is_file() and again.is_file():
+        t1 = next(x for x in read_json(main)["summary"] if x["kind"] == "pdt")
+        t2 = next(x for x in read_json(again)["summary"] if x["kind"] == "pdt")
+        note = ["", f"The default row repeats the run above on the same poses with the same "
+                f"answers: its PDt p50 is {t2['p50_us'] / max(t1['p50_us'], 1):.2f}× the run "
+                f"above's. The two processes execute the same instructions; the time follows "
+                f"where the allocator placed the models and buffers (glibc's `MALLOC_TOP_PAD_` "
+                f"alone moves a stored-pose run to the faster figure), so the goals above are "
+                f"judged on the slower of the two."]
     return "\n".join([
         conditions(d, "the poses and references of the run above",
                    f"`{B}/hapticpd-bench cold --poses-from cold16.json --cold-directions N "
                    f"--json` for N = {', '.join(str(n) for n in COLD_DIRECTIONS)}, and "
                    f"`--turn-starts 0`"), "",
         table(["escape directions", "PDt > 1.01", "PDt > 1.10", "PDt max", "PDt p50 µs",
-               "PDt p99 µs", "PDg > 1.01", "PDg > 1.10", "PDg p50 µs"], body)])
+               "PDt p99 µs", "PDg > 1.01", "PDg > 1.10", "PDg p50 µs"], body)] + note)
 
 
 def render_cold_stored(root):
@@ -890,13 +901,27 @@ def render_goals(root):
         rows.append(["cold PDt: ≥ 95 % within 1 %, none above 1.10×",
                      f"{100 * tw:.1f} %, {t['above_1_10']} above 1.10×",
                      "[Cold queries](#cold-queries)", met(tw >= 0.95 and t["above_1_10"] == 0)])
+        # The same queries from the stored poses, in a process of their own
+        # (Cold queries: the time follows the process's heap): the goal is
+        # judged on the slower of the two.
+        again = root / "cold-directions" / "directions141.json"
+        t2, g2 = t, g
+        if again.is_file():
+            s2 = {x["kind"]: x for x in read_json(again)["summary"]}
+            t2, g2 = s2["pdt"], s2["pdg"]
+        both = again.is_file()
+        tp50, tp99 = max(t["p50_us"], t2["p50_us"]), max(t["p99_us"], t2["p99_us"])
+        gp50 = max(g["p50_us"], g2["p50_us"])
         rows.append(["cold PDt p50 ≤ 1 ms, p99 ≤ 3 ms",
-                     f"{num(t['p50_us'])} / {num(t['p99_us'])} µs",
+                     f"{num(t['p50_us'])} / {num(t['p99_us'])} µs"
+                     + (f" ({num(t2['p50_us'])} / {num(t2['p99_us'])} from the stored poses)"
+                        if both else ""),
                      "[Cold queries](#cold-queries)",
-                     met(t["p50_us"] <= 1000 and t["p99_us"] <= 3000)])
+                     met(tp50 <= 1000 and tp99 <= 3000)])
         rows.append(["cold PDg: ≥ 95 % within 1 %, p50 ≤ 2 ms",
-                     f"{100 * gw:.1f} %, {num(g['p50_us'])} µs",
-                     "[Cold queries](#cold-queries)", met(gw >= 0.95 and g["p50_us"] <= 2000)])
+                     f"{100 * gw:.1f} %, {num(g['p50_us'])} µs"
+                     + (f" ({num(g2['p50_us'])} from the stored poses)" if both else ""),
+                     "[Cold queries](#cold-queries)", met(gw >= 0.95 and gp50 <= 2000)])
     loads = sorted(float(read_json(m)["load_average"].split()[0])
                    for m in root.glob("*/meta.json"))
     span = f"{loads[0]:.2f}–{loads[-1]:.2f}" if loads else "?"
