@@ -39,6 +39,7 @@ std::string Slurp(const fs::path& p) {
 
 server::ServerOptions StateOptions(const fs::path& dir) {
   server::ServerOptions o;
+  o.listen = "";  // in-process only: no port shared with tests running beside this one
   o.state_dir = dir.string();
   return o;
 }
