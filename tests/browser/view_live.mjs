@@ -1,7 +1,8 @@
 // (a) A page against a running server with a simulated device session
 // pressing a stick into a box: the page shows every body, the probe moves,
-// contacts appear while pressing, the force plot has samples, and no
-// shader program is built after load. Writes a
+// contacts appear while pressing, the force plot has samples, no shader
+// program is built after load, and the session's end removes it for good
+// (a late telemetry batch does not bring it back). Writes a
 // screenshot (HAPTICPD_SCREENSHOT, build/viewer-screenshot.png).
 import fs from 'node:fs';
 import path from 'node:path';
@@ -37,11 +38,12 @@ runTest('view_live', async (ctx) => {
   // between two polls of this process.
   await page.evaluate(() => {
     const r = window.__rec = { probes: 0, sessions: 0, lo: null, hi: null, contacts: 0, rows: 0,
-                               depth: 0, plot: 0, programs: 0 };
+                               depth: 0, plot: 0, programs: 0, ids: [] };
     setInterval(() => {
       const v = window.hapticpdView;
       const ps = Object.values(v.probes || {});
       r.probes = Math.max(r.probes, ps.length);
+      for (const id of Object.keys(v.probes || {})) if (!r.ids.includes(id)) r.ids.push(id);
       r.sessions = Math.max(r.sessions, __count(v.sessions));
       for (const p of ps) {
         if (!Array.isArray(p.position) || p.position.length !== 3 || !p.position.every(Number.isFinite)) continue;
@@ -107,6 +109,18 @@ runTest('view_live', async (ctx) => {
   await waitView(page, () => Object.keys(window.hapticpdView.probes).length === 0 &&
                              __count(window.hapticpdView.sessions) === 0,
                  { what: 'the ended session removed from the page' });
+  // The session's last telemetry batch arriving after its removal (the
+  // viewer sends announcements before queued telemetry) must not bring the
+  // ended session back.
+  const ended = rec.ids[0];
+  await page.evaluate((id) => {
+    const ws = window.__sockets[window.__sockets.length - 1];
+    const batch = { type: 'telemetry', sessions: [{ id, revision: 1, update_rate_hz: 1000,
+                    device: { seq: 1, servo_rate_hz: 1000 }, commanded: [], server: [] }] };
+    ws.dispatchEvent(new MessageEvent('message', { data: JSON.stringify(batch) }));
+  }, ended);
+  const late = await page.evaluate(() => __count(window.hapticpdView.sessions));
+  check(late === 0, `a late telemetry batch of the ended session '${ended}' leaves no session shown (${late})`);
   console.log(`final view: ${JSON.stringify(await viewState(page))}`);
   check(count((await viewState(page)).bodyIds) === 3, 'still 3 bodies');
 });

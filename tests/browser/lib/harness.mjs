@@ -370,6 +370,14 @@ export async function openPage(browser, url, { waitReady = true, timeoutMs = 200
   await page.evaluateOnNewDocument(() => {
     window.__count = (x) => (Array.isArray(x) ? x.length :
         (x && typeof x === 'object' ? Object.keys(x).length : Number(x) || 0));
+    // The page's WebSockets, newest last, so that a test can hand the page a
+    // message in an order the viewer cannot be made to produce on demand
+    // (socket.dispatchEvent(new MessageEvent('message', {data}))).
+    window.__sockets = [];
+    const Native = window.WebSocket;
+    window.WebSocket = class extends Native {
+      constructor(...args) { super(...args); window.__sockets.push(this); }
+    };
   });
   page.response = await page.goto(url, { waitUntil: 'load', timeout: timeoutMs });
   if (waitReady) {
