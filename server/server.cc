@@ -12,7 +12,6 @@
 
 #include <cerrno>
 #include <cstdlib>
-#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -69,9 +68,11 @@ void SetServing(grpc::Server* server, bool serving) {
   }
 }
 
-// Whether a plain socket can bind `listen` (HOST:PORT, a numeric port other
-// than 0). gRPC reports a port in use only as a multi-line log record before
-// BuildAndStart fails; this check names the problem first. The socket is
+// Throws when `listen` (HOST:PORT) names a port out of range, or when a
+// plain socket cannot bind it because the port is in use or needs
+// privileges. gRPC reports
+// that only as a multi-line log record before BuildAndStart fails; this
+// check names the problem first. The socket is
 // closed at once (a race with another process is left to gRPC's own
 // failure). Addresses gRPC resolves itself (unix:, dns:, ...) and hosts
 // that do not resolve here are left to gRPC.
@@ -80,7 +81,14 @@ void CheckListenAddress(const std::string& listen) {
   if (colon == std::string::npos || colon + 1 >= listen.size()) return;
   std::string host = listen.substr(0, colon);
   const std::string port = listen.substr(colon + 1);
-  if (port.find_first_not_of("0123456789") != std::string::npos || std::stol(port) == 0) return;
+  if (port.find_first_not_of("0123456789") != std::string::npos) return;
+  // gRPC would take a larger number modulo 65536 and listen on another port.
+  const unsigned long long number = port.size() > 18 ? ~0ULL : std::stoull(port);
+  if (number > 65535) {
+    throw std::runtime_error("cannot listen on " + listen + ": port " + port +
+                             " is out of range (1-65535, or 0 for any free port)");
+  }
+  if (number == 0) return;
   if (host.find(':') != std::string::npos && (host.front() != '[' || host.back() != ']')) return;
   if (host.size() >= 2 && host.front() == '[') host = host.substr(1, host.size() - 2);
   addrinfo hints{};

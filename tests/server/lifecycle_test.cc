@@ -134,6 +134,23 @@ TEST(Lifecycle, HealthIsNotServingAndCallsAreRefusedUntilTheStateIsLoaded) {
   srv.Shutdown();
 }
 
+// gRPC takes a port above 65535 modulo 65536 and would listen on another.
+TEST(Lifecycle, APortOutOfRangeIsRefused) {
+  for (const std::string port : {"70000", "65536", "99999999999999999999999"}) {
+    server::ServerOptions opt = server::ServerOptions::InProcess();
+    opt.listen = "127.0.0.1:" + port;
+    server::HapticServer srv(opt);
+    try {
+      srv.Start();
+      ADD_FAILURE() << "a server started on " << opt.listen << " (port " << srv.port() << ")";
+      srv.Shutdown();
+    } catch (const std::runtime_error& e) {
+      EXPECT_EQ(std::string(e.what()), "cannot listen on " + opt.listen + ": port " + port +
+                                           " is out of range (1-65535, or 0 for any free port)");
+    }
+  }
+}
+
 TEST(Lifecycle, ASecondServerOnAPortInUseDoesNotStart) {
   server::ServerOptions opt = server::ServerOptions::InProcess();
   server::HapticServer first(opt);
