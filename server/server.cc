@@ -50,11 +50,24 @@ std::string ReadFile(const std::string& path, const char* what) {
   return ss.str();
 }
 
+// A --listen address split at its last colon: HOST (an [IPv6] host without
+// its brackets) and PORT (empty when there is no colon).
+struct ListenAddress {
+  std::string host, port;
+  bool bracketed = false;
+};
+
+ListenAddress SplitListen(const std::string& listen) {
+  const std::size_t colon = listen.rfind(':');
+  ListenAddress a{listen.substr(0, colon),
+                  colon == std::string::npos ? "" : listen.substr(colon + 1)};
+  a.bracketed = a.host.size() >= 2 && a.host.front() == '[' && a.host.back() == ']';
+  if (a.bracketed) a.host = a.host.substr(1, a.host.size() - 2);
+  return a;
+}
+
 bool IsLoopback(const std::string& listen) {
-  std::string host = listen.substr(0, listen.rfind(':'));
-  if (host.size() >= 2 && host.front() == '[' && host.back() == ']') {
-    host = host.substr(1, host.size() - 2);
-  }
+  const std::string host = SplitListen(listen).host;
   return host == "localhost" || host.rfind("127.", 0) == 0 || host == "::1";
 }
 
@@ -77,11 +90,8 @@ void SetServing(grpc::Server* server, bool serving) {
 // failure). Addresses gRPC resolves itself (unix:, dns:, ...) and hosts
 // that do not resolve here are left to gRPC.
 void CheckListenAddress(const std::string& listen) {
-  const std::size_t colon = listen.rfind(':');
-  if (colon == std::string::npos || colon + 1 >= listen.size()) return;
-  std::string host = listen.substr(0, colon);
-  const std::string port = listen.substr(colon + 1);
-  if (port.find_first_not_of("0123456789") != std::string::npos) return;
+  const auto [host, port, bracketed] = SplitListen(listen);
+  if (port.empty() || port.find_first_not_of("0123456789") != std::string::npos) return;
   // gRPC would take a larger number modulo 65536 and listen on another port.
   const unsigned long long number = port.size() > 18 ? ~0ULL : std::stoull(port);
   if (number > 65535) {
@@ -89,8 +99,7 @@ void CheckListenAddress(const std::string& listen) {
                              " is out of range (1-65535, or 0 for any free port)");
   }
   if (number == 0) return;
-  if (host.find(':') != std::string::npos && (host.front() != '[' || host.back() != ']')) return;
-  if (host.size() >= 2 && host.front() == '[') host = host.substr(1, host.size() - 2);
+  if (host.find(':') != std::string::npos && !bracketed) return;  // IPv6 needs [ ]
   addrinfo hints{};
   hints.ai_family = AF_UNSPEC;
   hints.ai_socktype = SOCK_STREAM;
