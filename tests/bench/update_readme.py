@@ -679,6 +679,11 @@ def render_delay_server_only(root):
 COLD_KINDS = {"pdt": "PDt", "pdg": "PDg, no budget", "pdg-budget": "PDg, budget 8,000"}
 
 
+def cold_summaries(path):
+    """A cold run's summary rows by kind (pdt, pdg, pdg-budget)."""
+    return {x["kind"]: x for x in read_json(path)["summary"]}
+
+
 def cold_summary_rows(j):
     body = []
     for s in j["summary"]:
@@ -734,7 +739,7 @@ def render_cold_directions(root):
         p = d / name
         if not p.is_file():
             continue
-        s = {x["kind"]: x for x in read_json(p)["summary"]}
+        s = cold_summaries(p)
         t, g = s["pdt"], s["pdg"]
         body.append([label, t["above_1_01"],
                      t["above_1_10"], f"{t['ratio_max']:.2f}", num(t["p50_us"]), num(t["p99_us"]),
@@ -742,8 +747,7 @@ def render_cold_directions(root):
     note = []
     main, again = root / "cold" / "cold.json", d / "directions141.json"
     if main.is_file() and again.is_file():
-        t1 = next(x for x in read_json(main)["summary"] if x["kind"] == "pdt")
-        t2 = next(x for x in read_json(again)["summary"] if x["kind"] == "pdt")
+        t1, t2 = cold_summaries(main)["pdt"], cold_summaries(again)["pdt"]
         note = ["", f"The default row repeats the run above on the same poses with the same "
                 f"answers: its PDt p50 is {t2['p50_us'] / max(t1['p50_us'], 1):.2f}× the run "
                 f"above's. The two processes execute the same instructions; the time follows "
@@ -894,7 +898,7 @@ def render_goals(root):
                      f"{n} of {len(j['goals'])} goals", "[Delay](#delay)",
                      met(n == len(j["goals"]))])
     if have("cold"):
-        s = {x["kind"]: x for x in read_json(root / "cold" / "cold.json")["summary"]}
+        s = cold_summaries(root / "cold" / "cold.json")
         t, g = s["pdt"], s["pdg"]
         tw = 1 - t["above_1_01"] / max(t["count"], 1)
         gw = 1 - g["above_1_01"] / max(g["count"], 1)
@@ -905,11 +909,9 @@ def render_goals(root):
         # (Cold queries: the time follows the process's heap): the goal is
         # judged on the slower of the two.
         again = root / "cold-directions" / "directions141.json"
-        t2, g2 = t, g
-        if again.is_file():
-            s2 = {x["kind"]: x for x in read_json(again)["summary"]}
-            t2, g2 = s2["pdt"], s2["pdg"]
         both = again.is_file()
+        s2 = cold_summaries(again) if both else s
+        t2, g2 = s2["pdt"], s2["pdg"]
         tp50, tp99 = max(t["p50_us"], t2["p50_us"]), max(t["p99_us"], t2["p99_us"])
         gp50 = max(g["p50_us"], g2["p50_us"])
         rows.append(["cold PDt p50 ≤ 1 ms, p99 ≤ 3 ms",
