@@ -128,18 +128,24 @@ struct Viewer::Impl {
     http.BroadcastPoses(Members(msg));
   }
 
-  /// Plays the recording at opts.replay_speed, a pose frame per
-  /// 1 / rate_hz, until its end (then holds it) or Stop.
-  void RunReplay() {
-    ReplayPlayer& player = *opts.replay;
+  /// The replay's opening events (the scene, the session): handled before
+  /// the HTTP server starts, so that its first answer already holds them.
+  void BeginReplay() {
     std::vector<v1::SceneEvent> evs;
-    player.Begin(&evs);
+    opts.replay->Begin(&evs);
     bool first = true;
     for (const v1::SceneEvent& ev : evs) {
       events.fetch_add(1, std::memory_order_relaxed);
       Handle(ev, first);
       first = false;
     }
+  }
+
+  /// Plays the recording (begun by BeginReplay) at opts.replay_speed, a
+  /// pose frame per 1 / rate_hz, until its end (then holds it) or Stop.
+  void RunReplay() {
+    ReplayPlayer& player = *opts.replay;
+    std::vector<v1::SceneEvent> evs;
     spdlog::info("viewer: replaying {} ({:.1f} s, scene '{}')", player.input().file,
                  player.duration_s(), opts.scene_id);
     const auto t0 = std::chrono::steady_clock::now();
@@ -244,6 +250,7 @@ Viewer::Viewer(ViewerOptions options) : impl_(std::make_unique<Impl>(std::move(o
 Viewer::~Viewer() { Stop(); }
 
 void Viewer::Start() {
+  if (impl_->opts.replay) impl_->BeginReplay();  // queued for the network thread
   impl_->http.Start();
   impl_->watcher = std::thread([this] { impl_->Run(); });
 }
