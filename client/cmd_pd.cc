@@ -414,7 +414,7 @@ void RegisterPd(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--pdg-budget", opts->pdg_budget,
                   "PDg: work budget of the iterations in box and triangle pair tests, 0 for "
-                  "none (the servo loop's queries use " +
+                  "none (a device session's queries use " +
                       std::to_string(pd::PenetrationRequest{}.pdg_iteration_budget) +
                       "; a one-shot query has no next query to carry the optimisation on)")
       ->type_name("N")
