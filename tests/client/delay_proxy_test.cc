@@ -108,13 +108,17 @@ void ExpectBoundedAndPassive(int delay_ms, const DelayRun& r) {
   EXPECT_GE(r.net.rtt_p50_us, 1.6e3 * delay_ms);
   EXPECT_GE(r.net.rtt_max_us, r.net.rtt_p99_us);
   // At 50-100 ms the proxy is outside the IR's validity region most of the
-  // time and the force stays small (0.36-0.91 N measured at 50 ms, against
-  // 0.8-1.4 N at 20 ms and 1.7-2.0 N at 5 ms); 0.2 N is still a press. At
-  // 100 ms most answers arrive for a pose the proxy has already left and
-  // never push (IrEvaluator: passive, at the price of force; 0.07-0.19 N
-  // measured): what is left of a press is checked there.
-  EXPECT_GT(r.stats.max_force, delay_ms >= 100 ? 0.02 : 0.2)
-      << "the loop never pressed into the box";
+  // time and the force stays small; at 100 ms most answers arrive for a pose
+  // the proxy has already left and never push (IrEvaluator: passive, at the
+  // price of force). The ten-run ranges are in tests/bench/README.md "Load
+  // and delay runs of the tests". What is checked here is that contact was
+  // rendered at all, so that the passivity check below is not vacuous: free
+  // space renders about 1 mN at most, a rendered contact row several mN or
+  // more.
+  EXPECT_GT(r.stats.max_force, delay_ms >= 100  ? 0.005
+                               : delay_ms >= 50 ? 0.1
+                                                : 0.2)
+      << "the loop rendered no contact force";
   EXPECT_LE(r.stats.max_force, r.max_device_force);
   EXPECT_GT(r.stats.passivity_min_j, -eps);
 }
