@@ -297,6 +297,21 @@ def run_callgrind(r):
     shutil.rmtree(r.out / "cg", ignore_errors=True)  # thousands of dumps
 
 
+
+def run_load(r):
+    r.run([r.exe("tests/e2e_tests"), "--gtest_filter=Load.*", "--long"], "load.txt",
+          f"{B}/tests/e2e_tests --gtest_filter='Load.*' --long")
+
+
+DELAY_RUNS = 10
+
+
+def run_delay_runs(r):
+    r.run([r.exe("tests/client_timing_tests"), "--gtest_filter=Delays/*",
+           f"--gtest_repeat={DELAY_RUNS}"], "runs.txt",
+          f"{B}/tests/client_timing_tests --gtest_filter='Delays/*' --gtest_repeat={DELAY_RUNS}")
+
+
 HOP_FRAMES, HOP_BLOCKS = 20000, 40
 
 
@@ -676,6 +691,55 @@ def render_delay_server_only(root):
         delay_table(j), "", delay_goals(j)])
 
 
+
+LOAD_LINE = re.compile(
+    r"load: (\d+) sessions, (\d+) observers, ([\d.]+) s: updates ([\d.]+)/s total "
+    r"\(min per session ([\d.]+)/s\), observer frames ([\d.]+)/s total "
+    r"\(min per observer ([\d.]+)/s\), server frames dropped (\d+)")
+RSS_LINE = re.compile(
+    r"load: VmRSS after warm-up (\d+) KiB, at the end (\d+) KiB, growth (-?\d+) KiB")
+
+
+def render_load(root):
+    d = root / "load"
+    text = (d / "load.txt").read_text(errors="replace")
+    sessions, observers, secs, ups, min_ups, frames, min_frames, dropped = (
+        LOAD_LINE.search(text).groups())
+    before, after, growth = RSS_LINE.search(text).groups()
+    mib = lambda kib: f"{int(kib) / 1024:.1f}"
+    return "\n".join([
+        conditions(d), "",
+        table(["device sessions", "observers", "seconds", "updates/s, all sessions",
+               "updates/s, slowest session", "observer frames/s, all",
+               "frames/s, slowest observer", "frames dropped", "VmRSS after warm-up MiB",
+               "at the end MiB", "growth MiB"],
+              [[sessions, observers, f"{float(secs):.0f}", num(float(ups)),
+                num(float(min_ups)), num(float(frames)), num(float(min_frames)), dropped,
+                mib(before), mib(after), f"{int(growth) / 1024:+.1f}"]])])
+
+
+DELAY_RUN_LINE = re.compile(
+    r"^link delay +(\d+) ms .*max force ([\d.]+) N .*energy into hand (-?[\d.]+) J, "
+    r"passivity observer min (-?[\d.]+) J", re.M)
+
+
+def render_delay_runs(root):
+    d = root / "delay-runs"
+    runs = {}
+    for m in DELAY_RUN_LINE.finditer((d / "runs.txt").read_text(errors="replace")):
+        runs.setdefault(int(m.group(1)), []).append([float(x) for x in m.groups()[1:]])
+    span = lambda xs, f: f(min(xs)) if f(min(xs)) == f(max(xs)) else f"{f(min(xs))} to {f(max(xs))}"
+    mj = lambda x: f"{1e3 * x:.2f}".replace("-0.00", "0.00")
+    body = []
+    for delay in sorted(runs):
+        force, energy, observer = zip(*runs[delay])
+        body.append([f"{delay} ms", len(runs[delay]), span(observer, mj), span(energy, mj),
+                     span(force, lambda x: f"{x:.2f}")])
+    return "\n".join([
+        conditions(d), "",
+        table(["one-way delay", "runs", "passivity observer min mJ", "energy into the hand mJ",
+               "max force N"], body)])
+
 COLD_KINDS = {"pdt": "PDt", "pdg": "PDg, no budget", "pdg-budget": "PDg, budget 8,000"}
 
 
@@ -726,7 +790,34 @@ def render_cold(root):
         table(COLD_HEAD, cold_summary_rows(j)), "",
         f"PDt within 1 % of the reference on {100 * within:.1f} % of the poses.", "",
         "Per pair, answers above 1.01× / above 1.10×:", "",
-        table(["pair"] + list(COLD_KINDS.values()), pairs)])
+        table(["pair"] + list(COLD_KINDS.values()), pairs), "",
+        cold_pdt_far_off(j)])
+
+
+def cold_pdt_far_off(j):
+    """What the PDt answers above 1.10× are: another basin, or a reference
+    wedged in a sliver of free space (`reference_free_width`)."""
+    far = [a for a in j["answers"] if a["kind"] == "pdt" and a["ratio"] and a["ratio"] > 1.10]
+    if not far:
+        return "No PDt answer above 1.10×."
+    rows = []
+    for a in far:
+        width = a.get("reference_free_width", 0) or 0
+        if a.get("ratio_from_reference_basin", 0) and a["ratio_from_reference_basin"] > 0:
+            what = (f"another basin: from a free pose just outside the reference PDt answers "
+                    f"{a['ratio_from_reference_basin']:.4f}×")
+        elif width > 0:
+            what = (f"the reference is wedged: its line is free for {num(1e6 * width)} µm "
+                    f"beyond it ({100 * width / a['reference']:.2g} % of its depth), then "
+                    f"collides again")
+        else:
+            what = "not diagnosed"
+        rows.append([a["pair"], f"{100 * a['depth_fraction']:.1f} %", f"{a['ratio']:.3f}",
+                     f"{a['angle_deg']:.0f}°", what])
+    return "\n".join([
+        "The PDt answers above 1.10× (the angle is between the answer's direction and the "
+        "reference's):", "",
+        table(["pair", "depth", "ratio", "angle", "why"], rows, "lrrrl")])
 
 
 def render_cold_directions(root):
@@ -957,9 +1048,15 @@ TABLES = {
     "tail-instructions": (run_callgrind, render_callgrind),
     "hop": (run_hop, render_hop),
     "capacity": (run_capacity, render_capacity),
+    "load": (run_load, render_load),
+    "delay-runs": (run_delay_runs, render_delay_runs),
 }
 # What a derived table reads.
-INPUTS = {"tail": ["pdt", "pdg"], "delay-server-only": ["delay"], "goals": []}
+# The goals table is rendered only when every table it judges has outputs,
+# so that a partial run never drops goal rows.
+INPUTS = {"tail": ["pdt", "pdg"], "delay-server-only": ["delay"],
+          "goals": ["table1", "pdt", "pdg", "accuracy", "rpc", "servo", "effects", "delay",
+                    "cold"]}
 
 
 def inputs_present(root, name):
@@ -1118,9 +1215,12 @@ def main():
                 shutil.rmtree(failed_out, ignore_errors=True)
             except Failed as e:
                 failures.append(f"table '{name}': {e}")
-                print(f"update_readme: {failures[-1]}; its table keeps its last outputs",
-                      file=sys.stderr)
-                shutil.rmtree(out, ignore_errors=True)
+                print(f"update_readme: {failures[-1]}; its table keeps its last outputs "
+                      f"(this run's are in {root / (name + '.failed-run')})", file=sys.stderr)
+                # The failed run's output stays beside the last good one.
+                failed_run = root / (name + ".failed-run")
+                shutil.rmtree(failed_run, ignore_errors=True)
+                out.rename(failed_run)
                 if failed_out.exists():
                     failed_out.rename(out)
         print(f"update_readme: benchmarks took {time.monotonic() - t0:.0f} s", file=sys.stderr)
