@@ -281,6 +281,20 @@ double RatioFromReferenceBasin(const ColdPair& pair, ColdVerifier& verify, const
   return 0;
 }
 
+/// How far the reference's line stays free beyond the reference (m), when
+/// 0.1 % further out collides: bisection between the free reference and that
+/// colliding pose. 0 when 0.1 % further out is free.
+double ReferenceFreeWidth(ColdVerifier& verify, const ColdPose& p) {
+  auto at = [&](double s) { return Pose{p.X_WA.R, p.X_WA.t + p.pdt_reference_dir_W * s}; };
+  double lo = p.pdt_reference, hi = p.pdt_reference * (1 + 1e-3);
+  if (verify.Free(at(hi))) return 0;
+  for (int i = 0; i < 30; ++i) {
+    const double mid = 0.5 * (lo + hi);
+    (verify.Free(at(mid)) ? lo : hi) = mid;
+  }
+  return lo - p.pdt_reference;
+}
+
 }  // namespace
 
 std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
@@ -328,6 +342,8 @@ std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
       const double c = rt.translation_W.normalized().dot(p.pdt_reference_dir_W);
       at.angle_deg = std::acos(std::clamp(c, -1.0, 1.0)) * 180 / M_PI;
       at.ratio_from_reference_basin = RatioFromReferenceBasin(pair, *verify, p);
+      if (!(at.ratio_from_reference_basin > 0))
+        at.reference_free_width = ReferenceFreeWidth(*verify, p);
     }
     out.push_back(at);
     for (ColdKind kind : {ColdKind::kPdg, ColdKind::kPdgBudget}) {
@@ -456,7 +472,8 @@ nlohmann::json ToJson(const ColdReport& report) {
                             {"verified", a.check.ok()},
                             {"above_pdt", a.above_pdt},
                             {"angle_deg", a.angle_deg},
-                            {"ratio_from_reference_basin", a.ratio_from_reference_basin}});
+                            {"ratio_from_reference_basin", a.ratio_from_reference_basin},
+                            {"reference_free_width", a.reference_free_width}});
   }
   return j;
 }
@@ -501,9 +518,15 @@ void PrintCold(std::ostream& os, const ColdReport& report) {
         "the reference's basin):\n";
   for (const ColdAnswer& a : report.answers) {
     if (a.kind != ColdKind::kPdt || !(a.ratio > 1.01)) continue;
-    const std::string basin = a.ratio_from_reference_basin > 0
-                                  ? fmt::format("{:.4f}", a.ratio_from_reference_basin)
-                                  : std::string("n/a (no free pose just outside it)");
+    std::string basin = "n/a (no penetrating answer from it)";
+    if (a.ratio_from_reference_basin > 0) {
+      basin = fmt::format("{:.4f}", a.ratio_from_reference_basin);
+    } else if (a.reference_free_width > 0) {
+      basin = fmt::format(
+          "n/a (wedged: its line is free for {:.3g} um beyond it, {:.2g} % of its "
+          "depth)",
+          1e6 * a.reference_free_width, 100 * a.reference_free_width / a.reference);
+    }
     os << fmt::format("  {:<18} depth {:5.1f}% ratio {:.4f} {} it {} angle {:5.1f} basin {}\n",
                       a.pair, 100 * a.depth_fraction, a.ratio, pd::ToString(a.status), a.iterations,
                       a.angle_deg, basin);

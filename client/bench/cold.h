@@ -145,6 +145,11 @@ struct ColdAnswer {
   /// the motion-coherence cache).
   double angle_deg = 0;
   double ratio_from_reference_basin = 0;
+  /// When no free pose lies just outside the reference (pushed out by 0.1 %
+  /// or more along its line): how far beyond it the line is free before the
+  /// probe collides again (m). A reference wedged in such a sliver of free
+  /// space is reached by the sampling bound's bisection, not from outside.
+  double reference_free_width = 0;
 };
 
 /// The cold queries of each pose: PDt, PDg without the work budget (as the
