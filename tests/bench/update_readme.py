@@ -720,7 +720,7 @@ def render_load(root):
 
 DELAY_RUN_LINE = re.compile(
     r"^link delay +(\d+) ms .*max force ([\d.]+) N .*energy into hand (-?[\d.]+) J, "
-    r"passivity observer min (-?[\d.]+) J", re.M)
+    r"passivity observer min (-?[\d.]+) J[^\n]*?, contact ticks (\d+)", re.M)
 
 
 def render_delay_runs(root):
@@ -732,13 +732,13 @@ def render_delay_runs(root):
     mj = lambda x: f"{1e3 * x:.2f}".replace("-0.00", "0.00")
     body = []
     for delay in sorted(runs):
-        force, energy, observer = zip(*runs[delay])
+        force, energy, observer, ticks = zip(*runs[delay])
         body.append([f"{delay} ms", len(runs[delay]), span(observer, mj), span(energy, mj),
-                     span(force, lambda x: f"{x:.2f}")])
+                     span(force, lambda x: f"{x:.2f}"), span(ticks, lambda x: f"{x:.0f}")])
     return "\n".join([
         conditions(d), "",
         table(["one-way delay", "runs", "passivity observer min mJ", "energy into the hand mJ",
-               "max force N"], body)])
+               "max force N", "ticks with a contact push (of 2,000)"], body)])
 
 COLD_KINDS = {"pdt": "PDt", "pdg": "PDg, no budget", "pdg-budget": "PDg, budget 8,000"}
 

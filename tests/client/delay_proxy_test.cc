@@ -41,6 +41,7 @@ struct DelayRun {
   client::SessionStats net;
   double work_in = 0;  // energy the hand spent pushing into the contact (J)
   double max_device_force = 0;
+  int contact_ticks = 0;  // ticks whose IR put a contact wrench on the proxy
 };
 
 /// Connects a Session to `port` (the server's, or a proxy's) through `link`
@@ -67,6 +68,7 @@ DelayRun RunLoopScript(testing::Rig& rig, int port, std::optional<client::LinkOp
     run.work_in += std::max(0.0, -1e-3 * last_F.dot(0.5 * (v + last_v)));
     last_v = v;
     last_F = r.F_cmd_W.force;
+    run.contact_ticks += r.wrench_ir.head<3>().norm() > 0;
     return true;
   });
   rig.session->Stop();
@@ -80,12 +82,12 @@ void Print(const char* how, int delay_ms, const DelayRun& r, double eps) {
   std::printf(
       "%s delay %3d ms +-20%%: rtt p50 %.1f ms p99 %.1f ms, updates %llu (contact %llu), stale "
       "ticks %llu, max force %.2f N (device limit %.1f N), hand work in %.4f J, energy into "
-      "hand %.5f J, passivity observer min %.5f J (epsilon %.5f J)\n",
+      "hand %.5f J, passivity observer min %.5f J (epsilon %.5f J), contact ticks %d\n",
       how, delay_ms, r.net.rtt_p50_us / 1e3, r.net.rtt_p99_us / 1e3,
       static_cast<unsigned long long>(r.net.updates),
       static_cast<unsigned long long>(r.net.contact_updates),
       static_cast<unsigned long long>(r.stats.stale_ticks), r.stats.max_force, r.max_device_force,
-      r.work_in, r.stats.energy_into_hand_j, r.stats.passivity_min_j, eps);
+      r.work_in, r.stats.energy_into_hand_j, r.stats.passivity_min_j, eps, r.contact_ticks);
 }
 
 /// The passivity tolerance of a delayed run: 2 % of the hand's work into the
@@ -107,18 +109,20 @@ void ExpectBoundedAndPassive(int delay_ms, const DelayRun& r) {
   // that far: it once topped out at 100 ms and read 100 ms at 50 and 100 ms).
   EXPECT_GE(r.net.rtt_p50_us, 1.6e3 * delay_ms);
   EXPECT_GE(r.net.rtt_max_us, r.net.rtt_p99_us);
-  // At 50-100 ms the proxy is outside the IR's validity region most of the
-  // time and the force stays small; at 100 ms most answers arrive for a pose
-  // the proxy has already left and never push (IrEvaluator: passive, at the
-  // price of force). The ten-run ranges are in tests/bench/README.md "Load
-  // and delay runs of the tests". What is checked here is that contact was
-  // rendered at all, so that the passivity check below is not vacuous: free
-  // space renders about 1 mN at most, a rendered contact row several mN or
-  // more.
-  EXPECT_GT(r.stats.max_force, delay_ms >= 100  ? 0.005
-                               : delay_ms >= 50 ? 0.1
-                                                : 0.2)
-      << "the loop rendered no contact force";
+  // With server answers only, at 50-100 ms the proxy is outside the IR's
+  // validity region nearly all the time, and an answer for a pose the proxy
+  // has left never pushes (IrEvaluator: passive, at the price of force): at
+  // 50 ms contact rows push on the proxy on a few to tens of the 2,000
+  // ticks, at 100 ms on none, and what force the loop commands there comes
+  // from the proxy's coupling, not from contact (the ten-run figures, contact
+  // ticks included, are in tests/bench/README.md "Load and delay runs of the
+  // tests"). So the press itself is checked up to 20 ms; beyond, the server
+  // answered contact (above) and the checks below hold whatever the loop
+  // made of it.
+  if (delay_ms <= 20) {
+    EXPECT_GE(r.contact_ticks, 100) << "contact rows never pushed on the proxy";
+    EXPECT_GT(r.stats.max_force, 0.2) << "the loop never pressed into the box";
+  }
   EXPECT_LE(r.stats.max_force, r.max_device_force);
   EXPECT_GT(r.stats.passivity_min_j, -eps);
 }
