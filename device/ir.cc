@@ -146,7 +146,6 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
   info->stale = expired_ || info->age_s > params_.max_age_s;
   info->outside_validity = !InsideValidity(ir_, X_WP);
   if (!info->outside_validity) unvisited_ = false;
-  info->unvisited = unvisited_;
   // Staleness is not faded here: the servo loop fades its whole output on
   // link loss (ServoConfig::link_fade_time_s), so one event has one fade.
   // A fade-down while the IR is stale (the proxy, held on the handle, left

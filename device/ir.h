@@ -118,10 +118,6 @@ struct IrEvalInfo {
   bool have_ir = false;
   bool stale = false;
   bool outside_validity = false;
-  /// The IR arrived for a pose whose validity region the proxy was already
-  /// outside of, and the proxy has not been inside it since (its rows do
-  /// not push).
-  bool unvisited = false;
   int active_rows = 0;
   double age_s = 0;
   double fade = 0;   ///< fade gain in [0, 1]

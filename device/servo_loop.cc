@@ -193,15 +193,14 @@ void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, double dt
   // carried by the handle's motion over the difference (at most the periods
   // Run catches up before it resyncs), weighted like the free-space damping;
   // in contact it is not moved (and a still hand moves nothing anywhere).
-  // Only where the IR says the space is free: a fresh IR whose validity
-  // region holds the proxy. Without one (none yet, stale, or answering a
-  // pose the proxy has left, as under long delays) nothing is known of what
-  // is near, and the proxy keeps its own dynamics.
+  // This holds whatever the IR's state: without a fresh IR whose validity
+  // region holds the proxy (none yet, stale, or answering a pose the proxy
+  // has left, as under long delays) nothing pushes on the proxy, and its own
+  // dynamics would take it to the handle within a few ticks anyway; carried,
+  // it gets there without the tap. Where rows still say the proxy is near a
+  // surface, the contact weight keeps it from being carried.
   // Before the step, so the step sees the stretch a period's motion left.
-  const bool known_free =
-      r->ir.have_ir && !r->ir.stale && !r->ir.outside_validity && !r->ir.unvisited;
-  const double lag_s =
-      known_free ? (1.0 - r->contact_weight) * (std::clamp(dt, 0.0, kCatchUpPeriods * h) - h) : 0.0;
+  const double lag_s = (1.0 - r->contact_weight) * (std::clamp(dt, 0.0, kCatchUpPeriods * h) - h);
   if (lag_s != 0) {
     proxy_.X_WP.t += lag_s * v_WH;
     proxy_.X_WP.R = internal::Orthonormalize(internal::ExpRotation(lag_s * w_WH) * proxy_.X_WP.R);

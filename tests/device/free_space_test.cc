@@ -36,7 +36,7 @@ struct FreeStats {
 /// probe's bottom face above the top face; the box is wider than every
 /// script's reach) and no row is active.
 FreeStats RunScript(HandScript script, double clearance, double* max_contact_force = nullptr,
-                    bool late_ticks = false) {
+                    bool late_ticks = false, int latency_ticks = 1) {
   ScriptParams p;
   p.script = script;
   p.X_DS = StartAbove(kBoxTop, clearance);
@@ -59,7 +59,9 @@ FreeStats RunScript(HandScript script, double clearance, double* max_contact_for
     default:
       p.duration_s = 2;
   }
-  Rig rig(p, CubeProbe(), BoxScene());
+  LocalPdOptions options;
+  options.latency_ticks = latency_ticks;
+  Rig rig(p, CubeProbe(), BoxScene(), ServoConfig{}, options);
   if (late_ticks) {
     // As ServoLoop::Run on a busy machine: every 37th tick fires 2.3 ms
     // late, and the ticks whose deadlines passed meanwhile fire right after
@@ -128,6 +130,20 @@ TEST_P(FreeSpace, LateTicksAndTheirCatchUpTicksAreNotFelt) {
   if (GetParam() == HandScript::kPress || GetParam() == HandScript::kPlate) {
     EXPECT_GT(contact, 2.0) << "contact lost its stiffness";
   }
+}
+
+TEST_P(FreeSpace, LateTicksUnderALongLinkDelayAreNotFelt) {
+  // 100 ms between a pose and its answer: a moving proxy is outside the
+  // validity region of every answer it renders, so no answer says the space
+  // around it is free. Late ticks and their catch-up ticks there must not be
+  // felt either.
+  const FreeStats s = RunScript(GetParam(), 0.2, nullptr, /*late_ticks=*/true,
+                                /*latency_ticks=*/100);
+  std::printf("%s with late ticks, 100 ms answers: %d free ticks, max %.4f N, %.5f N m\n",
+              ToString(GetParam()), s.judged, s.max_force, s.max_torque);
+  EXPECT_GT(s.judged, 400);
+  EXPECT_LE(s.max_force, kMaxFreeForce);
+  EXPECT_LE(s.max_torque, kMaxFreeTorque);
 }
 
 TEST_P(FreeSpace, NoContactTicksOfAScriptThatTouchesStayFreeAndContactStillPushes) {
