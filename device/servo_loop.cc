@@ -17,9 +17,9 @@ namespace hapticpd::device {
 
 namespace {
 // Run fires catch-up ticks while it is at most this many periods behind, and
-// resyncs beyond; the proxy's catch-up with the handle is bounded by the
-// same span.
+// resyncs beyond.
 constexpr int kCatchUpPeriods = 5;
+
 }  // namespace
 
 std::int64_t SteadyClock::NowNs() const {
@@ -190,21 +190,33 @@ void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, double dt
   // finds the handle more than a period's motion on, and the catch-up ticks
   // after it find it barely moved, so the proxy would lag, then overshoot,
   // and the hand feel a tap in free space. Away from contact the proxy is
-  // carried by the handle's motion over the difference (at most the periods
-  // Run catches up before it resyncs), weighted like the free-space damping;
-  // in contact it is not moved (and a still hand moves nothing anywhere).
-  // This holds whatever the IR's state: without a fresh IR whose validity
-  // region holds the proxy (none yet, stale, or answering a pose the proxy
-  // has left, as under long delays) nothing pushes on the proxy, and its own
-  // dynamics would take it to the handle within a few ticks anyway; carried,
-  // it gets there without the tap. Where rows still say the proxy is near a
-  // surface, the contact weight keeps it from being carried.
+  // carried by the handle's motion over the difference, weighted like the
+  // free-space damping; in contact it is not moved (and a still hand moves
+  // nothing anywhere). Within Run's catch-up span the handle's velocity
+  // stands for that motion, and the catch-up ticks carry back what the late
+  // one carried on. After a longer stall Run resyncs and no catch-up tick
+  // follows: the proxy is carried by the handle's whole motion since the
+  // last tick, less the period's worth the step accounts for. This holds
+  // whatever the IR's state: without a fresh IR whose validity region holds
+  // the proxy (none yet, stale, or answering a pose the proxy has left, as
+  // under long delays) nothing pushes on the proxy, and its own dynamics
+  // would take it to the handle within a few ticks anyway; carried, it gets
+  // there without the tap. Where rows still say the proxy is near a surface,
+  // the contact weight keeps it from being carried.
   // Before the step, so the step sees the stretch a period's motion left.
-  const double lag_s = (1.0 - r->contact_weight) * (std::clamp(dt, 0.0, kCatchUpPeriods * h) - h);
-  if (lag_s != 0) {
+  const double carry = 1.0 - r->contact_weight;
+  if (carry > 0 && dt > kCatchUpPeriods * h && have_last_handle_) {
+    proxy_.X_WP.t += carry * ((r->X_WH.t - X_WH_last_.t) - h * v_WH);
+    const Vec3 turn = internal::LogRotation(internal::ExpRotation(-h * w_WH) * r->X_WH.R *
+                                            X_WH_last_.R.transpose());
+    proxy_.X_WP.R = internal::Orthonormalize(internal::ExpRotation(carry * turn) * proxy_.X_WP.R);
+  } else if (carry > 0 && dt != h) {
+    const double lag_s = carry * (std::max(dt, 0.0) - h);
     proxy_.X_WP.t += lag_s * v_WH;
     proxy_.X_WP.R = internal::Orthonormalize(internal::ExpRotation(lag_s * w_WH) * proxy_.X_WP.R);
   }
+  X_WH_last_ = r->X_WH;
+  have_last_handle_ = true;
   StepProxy(coupling_, r->X_WH, v_WH, w_WH, r->wrench_effects, K_fx, h, &proxy_, r->contact_weight);
   // An IR no valid answer produces (numbers that overflow on their way,
   // from a broken or foreign server) must not leave the proxy non-finite

@@ -241,6 +241,8 @@ class ServoLoop {
   ProxyState proxy_;
   bool proxy_init_ = false;
   std::int64_t last_tick_ns_ = 0;
+  Pose X_WH_last_;  ///< the handle at the last tick that read the device
+  bool have_last_handle_ = false;
   Wrench last_cmd_W_;
   Vec3 last_v_W_ = Vec3::Zero();
   Vec3 last_w_W_ = Vec3::Zero();

@@ -4,7 +4,8 @@
 // on every simulated hand script (the handle's own damping is physics the
 // user feels anyway and is not part of the command). Contact keeps its
 // stiffness: the same press still pushes back. Both hold with late ticks
-// and the catch-up ticks after them. Simulated time (Rig), so it runs in
+// and the catch-up ticks after them, with answers 100 ms late, and with
+// stalls longer than the servo loop catches up. Simulated time (Rig), so it runs in
 // every preset.
 #include <gtest/gtest.h>
 
@@ -35,8 +36,10 @@ struct FreeStats {
 /// the ticks where the proxy is more than 1 mm from the box (the cube
 /// probe's bottom face above the top face; the box is wider than every
 /// script's reach) and no row is active.
+enum class Lateness { kNone, kCatchUp, kStall };
+
 FreeStats RunScript(HandScript script, double clearance, double* max_contact_force = nullptr,
-                    bool late_ticks = false, int latency_ticks = 1) {
+                    Lateness late = Lateness::kNone, int latency_ticks = 1) {
   ScriptParams p;
   p.script = script;
   p.X_DS = StartAbove(kBoxTop, clearance);
@@ -62,13 +65,20 @@ FreeStats RunScript(HandScript script, double clearance, double* max_contact_for
   LocalPdOptions options;
   options.latency_ticks = latency_ticks;
   Rig rig(p, CubeProbe(), BoxScene(), ServoConfig{}, options);
-  if (late_ticks) {
+  if (late == Lateness::kCatchUp) {
     // As ServoLoop::Run on a busy machine: every 37th tick fires 2.3 ms
     // late, and the ticks whose deadlines passed meanwhile fire right after
     // it, 20 us apart, until the schedule is caught up.
     rig.tick_time_ns = [](std::int64_t n, std::int64_t previous_ns) {
       const std::int64_t deadline = n * 1'000'000 + (n % 37 == 0 ? 2'300'000 : 0);
       return std::max(deadline, previous_ns + 20'000);
+    };
+  } else if (late == Lateness::kStall) {
+    // A stall longer than Run catches up: every 97th tick fires 20 ms late
+    // and Run resyncs, so no catch-up ticks follow and the schedule moves on
+    // from there.
+    rig.tick_time_ns = [](std::int64_t n, std::int64_t previous_ns) {
+      return previous_ns + (n % 97 == 0 ? 20'000'000 : 1'000'000);
     };
   }
   FreeStats s;
@@ -115,7 +125,7 @@ TEST_P(FreeSpace, LateTicksAndTheirCatchUpTicksAreNotFelt) {
   // The handle moves in real time: a late tick finds it two periods on, and
   // the catch-up ticks after it find it barely moved. A proxy stepped by a
   // fixed period lags, then overshoots, and the hand feels a tap each time.
-  const FreeStats s = RunScript(GetParam(), 0.2, nullptr, /*late_ticks=*/true);
+  const FreeStats s = RunScript(GetParam(), 0.2, nullptr, Lateness::kCatchUp);
   std::printf("%s with late ticks: %d free ticks, max %.4f N, %.5f N m\n", ToString(GetParam()),
               s.judged, s.max_force, s.max_torque);
   EXPECT_GT(s.judged, 400);
@@ -124,7 +134,7 @@ TEST_P(FreeSpace, LateTicksAndTheirCatchUpTicksAreNotFelt) {
   // Near the box, with the same late ticks: free ticks stay free and the
   // press still pushes back.
   double contact = 0;
-  const FreeStats near = RunScript(GetParam(), 0.002, &contact, /*late_ticks=*/true);
+  const FreeStats near = RunScript(GetParam(), 0.002, &contact, Lateness::kCatchUp);
   EXPECT_LE(near.max_force, kMaxFreeForce);
   EXPECT_LE(near.max_torque, kMaxFreeTorque);
   if (GetParam() == HandScript::kPress || GetParam() == HandScript::kPlate) {
@@ -137,13 +147,31 @@ TEST_P(FreeSpace, LateTicksUnderALongLinkDelayAreNotFelt) {
   // validity region of every answer it renders, so no answer says the space
   // around it is free. Late ticks and their catch-up ticks there must not be
   // felt either.
-  const FreeStats s = RunScript(GetParam(), 0.2, nullptr, /*late_ticks=*/true,
+  const FreeStats s = RunScript(GetParam(), 0.2, nullptr, Lateness::kCatchUp,
                                 /*latency_ticks=*/100);
   std::printf("%s with late ticks, 100 ms answers: %d free ticks, max %.4f N, %.5f N m\n",
               ToString(GetParam()), s.judged, s.max_force, s.max_torque);
   EXPECT_GT(s.judged, 400);
   EXPECT_LE(s.max_force, kMaxFreeForce);
   EXPECT_LE(s.max_torque, kMaxFreeTorque);
+}
+
+TEST_P(FreeSpace, AStallLongerThanTheCatchUpIsNotFelt) {
+  // Beyond a few periods Run resyncs instead of catching up: the handle has
+  // moved a whole stall on and no catch-up ticks follow.
+  const FreeStats s = RunScript(GetParam(), 0.2, nullptr, Lateness::kStall);
+  std::printf("%s with 20 ms stalls: %d free ticks, max %.4f N, %.5f N m\n", ToString(GetParam()),
+              s.judged, s.max_force, s.max_torque);
+  EXPECT_GT(s.judged, 400);
+  EXPECT_LE(s.max_force, kMaxFreeForce);
+  EXPECT_LE(s.max_torque, kMaxFreeTorque);
+  double contact = 0;
+  const FreeStats near = RunScript(GetParam(), 0.002, &contact, Lateness::kStall);
+  EXPECT_LE(near.max_force, kMaxFreeForce);
+  EXPECT_LE(near.max_torque, kMaxFreeTorque);
+  if (GetParam() == HandScript::kPress || GetParam() == HandScript::kPlate) {
+    EXPECT_GT(contact, 2.0) << "contact lost its stiffness";
+  }
 }
 
 TEST_P(FreeSpace, NoContactTicksOfAScriptThatTouchesStayFreeAndContactStillPushes) {
