@@ -121,25 +121,32 @@ TEST_P(FreeSpace, CommandedForceAndTorqueStayBelowWhatAHandNotices) {
   }
 }
 
+/// Free space stays free with the given lateness (and answer latency) far
+/// from the box, and with `near_too` near it, where the press still pushes
+/// back.
+void ExpectLatenessNotFelt(HandScript script, Lateness late, int latency_ticks, const char* what,
+                           bool near_too) {
+  const FreeStats s = RunScript(script, 0.2, nullptr, late, latency_ticks);
+  std::printf("%s with %s: %d free ticks, max %.4f N, %.5f N m\n", ToString(script), what, s.judged,
+              s.max_force, s.max_torque);
+  EXPECT_GT(s.judged, 400);
+  EXPECT_LE(s.max_force, kMaxFreeForce);
+  EXPECT_LE(s.max_torque, kMaxFreeTorque);
+  if (!near_too) return;
+  double contact = 0;
+  const FreeStats near = RunScript(script, 0.002, &contact, late, latency_ticks);
+  EXPECT_LE(near.max_force, kMaxFreeForce);
+  EXPECT_LE(near.max_torque, kMaxFreeTorque);
+  if (script == HandScript::kPress || script == HandScript::kPlate) {
+    EXPECT_GT(contact, 2.0) << "contact lost its stiffness";
+  }
+}
+
 TEST_P(FreeSpace, LateTicksAndTheirCatchUpTicksAreNotFelt) {
   // The handle moves in real time: a late tick finds it two periods on, and
   // the catch-up ticks after it find it barely moved. A proxy stepped by a
   // fixed period lags, then overshoots, and the hand feels a tap each time.
-  const FreeStats s = RunScript(GetParam(), 0.2, nullptr, Lateness::kCatchUp);
-  std::printf("%s with late ticks: %d free ticks, max %.4f N, %.5f N m\n", ToString(GetParam()),
-              s.judged, s.max_force, s.max_torque);
-  EXPECT_GT(s.judged, 400);
-  EXPECT_LE(s.max_force, kMaxFreeForce);
-  EXPECT_LE(s.max_torque, kMaxFreeTorque);
-  // Near the box, with the same late ticks: free ticks stay free and the
-  // press still pushes back.
-  double contact = 0;
-  const FreeStats near = RunScript(GetParam(), 0.002, &contact, Lateness::kCatchUp);
-  EXPECT_LE(near.max_force, kMaxFreeForce);
-  EXPECT_LE(near.max_torque, kMaxFreeTorque);
-  if (GetParam() == HandScript::kPress || GetParam() == HandScript::kPlate) {
-    EXPECT_GT(contact, 2.0) << "contact lost its stiffness";
-  }
+  ExpectLatenessNotFelt(GetParam(), Lateness::kCatchUp, 1, "late ticks", true);
 }
 
 TEST_P(FreeSpace, LateTicksUnderALongLinkDelayAreNotFelt) {
@@ -147,31 +154,15 @@ TEST_P(FreeSpace, LateTicksUnderALongLinkDelayAreNotFelt) {
   // validity region of every answer it renders, so no answer says the space
   // around it is free. Late ticks and their catch-up ticks there must not be
   // felt either.
-  const FreeStats s = RunScript(GetParam(), 0.2, nullptr, Lateness::kCatchUp,
-                                /*latency_ticks=*/100);
-  std::printf("%s with late ticks, 100 ms answers: %d free ticks, max %.4f N, %.5f N m\n",
-              ToString(GetParam()), s.judged, s.max_force, s.max_torque);
-  EXPECT_GT(s.judged, 400);
-  EXPECT_LE(s.max_force, kMaxFreeForce);
-  EXPECT_LE(s.max_torque, kMaxFreeTorque);
+  // (Near the box, answers 100 ms late press the hand deep into it and push
+  // the proxy back out later: not free space.)
+  ExpectLatenessNotFelt(GetParam(), Lateness::kCatchUp, 100, "late ticks, 100 ms answers", false);
 }
 
 TEST_P(FreeSpace, AStallLongerThanTheCatchUpIsNotFelt) {
   // Beyond a few periods Run resyncs instead of catching up: the handle has
   // moved a whole stall on and no catch-up ticks follow.
-  const FreeStats s = RunScript(GetParam(), 0.2, nullptr, Lateness::kStall);
-  std::printf("%s with 20 ms stalls: %d free ticks, max %.4f N, %.5f N m\n", ToString(GetParam()),
-              s.judged, s.max_force, s.max_torque);
-  EXPECT_GT(s.judged, 400);
-  EXPECT_LE(s.max_force, kMaxFreeForce);
-  EXPECT_LE(s.max_torque, kMaxFreeTorque);
-  double contact = 0;
-  const FreeStats near = RunScript(GetParam(), 0.002, &contact, Lateness::kStall);
-  EXPECT_LE(near.max_force, kMaxFreeForce);
-  EXPECT_LE(near.max_torque, kMaxFreeTorque);
-  if (GetParam() == HandScript::kPress || GetParam() == HandScript::kPlate) {
-    EXPECT_GT(contact, 2.0) << "contact lost its stiffness";
-  }
+  ExpectLatenessNotFelt(GetParam(), Lateness::kStall, 1, "20 ms stalls", true);
 }
 
 TEST_P(FreeSpace, NoContactTicksOfAScriptThatTouchesStayFreeAndContactStillPushes) {
