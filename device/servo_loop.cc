@@ -211,7 +211,7 @@ void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, double dt
                                             X_WH_last_.R.transpose());
     proxy_.X_WP.R = internal::Orthonormalize(internal::ExpRotation(carry * turn) * proxy_.X_WP.R);
   } else if (carry > 0 && dt != h) {
-    const double lag_s = carry * (std::max(dt, 0.0) - h);
+    const double lag_s = carry * (std::clamp(dt, 0.0, kCatchUpPeriods * h) - h);
     proxy_.X_WP.t += lag_s * v_WH;
     proxy_.X_WP.R = internal::Orthonormalize(internal::ExpRotation(lag_s * w_WH) * proxy_.X_WP.R);
   }
