@@ -19,7 +19,6 @@ namespace {
 // Run fires catch-up ticks while it is at most this many periods behind, and
 // resyncs beyond.
 constexpr int kCatchUpPeriods = 5;
-
 }  // namespace
 
 std::int64_t SteadyClock::NowNs() const {
