@@ -83,9 +83,8 @@ void SetServing(grpc::Server* server, bool serving) {
 
 // Throws when `listen` (HOST:PORT) names a port out of range, or when a
 // plain socket cannot bind it because the port is in use or needs
-// privileges. gRPC reports
-// that only as a multi-line log record before BuildAndStart fails; this
-// check names the problem first. The socket is
+// privileges. gRPC reports that only as a multi-line log record before
+// BuildAndStart fails; this check names the problem first. The socket is
 // closed at once (a race with another process is left to gRPC's own
 // failure). Addresses gRPC resolves itself (unix:, dns:, ...) and hosts
 // that do not resolve here are left to gRPC.
