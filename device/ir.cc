@@ -93,6 +93,7 @@ void IrEvaluator::Reset() {
   has_ir_ = false;
   last_W_.setZero();
   offset_.setZero();
+  offset_energy_j_ = 0;
   blend_tick_ = 0;
   fade_ = 0;
   shift_ = 0;
@@ -112,22 +113,41 @@ void IrEvaluator::Accept(const IntermediateRep& ir, const Pose& X_WP) {
   // energy than it took.)
   Vec6 W_old = Vec6::Zero();
   if (has_ir_) {
-    EvaluateIrShifted(ir_, X_WP, shift_, &W_old, &K, nullptr);
+    IrPotential pot_old;
+    EvaluateIrShifted(ir_, X_WP, shift_, &W_old, &K, &pot_old);
     const int n = std::max(1, params_.blend_ticks);
-    if (blend_tick_ < n) W_old += (1.0 - static_cast<double>(blend_tick_) / n) * offset_;
+    if (blend_tick_ < n) {
+      W_old +=
+          OffsetScale(pot_old.energy_j) * (1.0 - static_cast<double>(blend_tick_) / n) * offset_;
+    }
   }
   ir_ = ir;
   unvisited_ = !InsideValidity(ir_, X_WP);
   Vec6 W_new = Vec6::Zero();
-  if (!unvisited_) EvaluateIrShifted(ir_, X_WP, shift_, &W_new, &K, nullptr);
+  IrPotential pot;
+  if (!unvisited_) EvaluateIrShifted(ir_, X_WP, shift_, &W_new, &K, &pot);
   // First IR: nothing to blend from (the fade-in ramps it).
   offset_ = has_ir_ ? Vec6(W_old - W_new) : Vec6::Zero();
   // Two answers that agree leave round-off (1e-17 N), which would let a
   // contact that only ever pushes read as a tiny pull.
   if (offset_.cwiseAbs().maxCoeff() < 1e-9) offset_.setZero();
+  offset_energy_j_ = pot.energy_j;
   blend_tick_ = 0;
   has_ir_ = true;
   expired_ = false;
+}
+
+double IrEvaluator::OffsetScale(double energy_j) const {
+  // A new IR that pushes harder than the old one at the same pose leaves an
+  // offset that pulls. Added as is, it would pull the proxy in once the new
+  // rows go slack as the proxy leaves (and, carried on by the next IR's
+  // blend, keep pulling while IRs arrive every tick). Scaled with the new
+  // rows' push, by the root of their energy (linear in a row's depth), the
+  // blended contact only ever pushes: k e (1 - r) + r c e / e0 for a row
+  // e <= e0 deep (e0 at the IR's arrival) and an old push c >= 0. An IR
+  // that arrived pushing nothing blends the old push out unscaled.
+  if (offset_energy_j_ <= 0) return 1.0;
+  return std::sqrt(std::min(1.0, energy_j / offset_energy_j_));
 }
 
 void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, Vec6* W, Mat6* K,
@@ -196,8 +216,8 @@ void IrEvaluator::Evaluate(const Pose& X_WP, std::int64_t now_ns, double dt_s, V
   if (blend_tick_ < n) {
     ++blend_tick_;
     const double remaining = 1.0 - static_cast<double>(blend_tick_) / n;
-    *W += remaining * offset_;
     info->blend = 1.0 - remaining;
+    *W += OffsetScale(pot.energy_j) * remaining * offset_;
   }
   last_W_ = *W;
   *W *= fade_;

@@ -164,11 +164,19 @@ class IrEvaluator {
   const IntermediateRep& current() const { return ir_; }
 
  private:
+  // The share of the blend offset kept where the current IR's rows hold
+  // `energy_j` of potential energy (see offset_energy_j_).
+  double OffsetScale(double energy_j) const;
+
   IrEvalParams params_;
   IntermediateRep ir_;
   bool has_ir_ = false;
   Vec6 last_W_ = Vec6::Zero();  // unfaded output of the last Evaluate
   Vec6 offset_ = Vec6::Zero();  // blend offset at the IR's arrival
+  // The rows' potential energy at the pose the IR arrived at (J): the offset
+  // is scaled by sqrt(energy now / offset_energy_j_), at most 1, so it
+  // fades with the push it was blended against.
+  double offset_energy_j_ = 0;
   int blend_tick_ = 0;
   double fade_ = 0;
   double shift_ = 0;  // m, see IrEvalParams::energy_neutral_reentry

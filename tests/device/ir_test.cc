@@ -100,6 +100,36 @@ TEST(IrEval, BlendStaysContinuousWhenIrsArriveEveryTick) {
   EXPECT_LE(max_step, 0.2 + 1e-9);
 }
 
+TEST(IrEval, ABlendTowardsAHarderPushNeverPullsAsTheProxyLeaves) {
+  IrEvalParams p;
+  p.blend_ticks = 10;
+  p.max_age_s = 1;  // never stale here
+  p.fade_in_time_s = 0.02;
+  IrEvaluator ev(p);
+  const Pose X = Pose::FromTranslation(Vec3(0, 0, 0.1));
+  Vec6 W;
+  Mat6 K;
+  IrEvalInfo info;
+  ev.Accept(FloorIr(0.001, 1000, 0), X);
+  for (int i = 0; i < 40; ++i) ev.Evaluate(X, i * kMs, 1e-3, &W, &K, &info);
+  ASSERT_NEAR(W(2), 1.0, 1e-9);
+  // The next answers push harder (3 mm) and arrive every tick while the
+  // proxy leaves the surface at 0.5 mm per tick: the blend must fade with
+  // the push, never leave a pull (an unscaled offset pulled with 0.96 N and
+  // each later answer carried what was left of it on: 0.24 N at the end).
+  double min_z = 1e9, max_lateral = 0;
+  for (int i = 0; i < 20; ++i) {
+    const Pose Xi = Pose::FromTranslation(Vec3(0, 0, 0.1 + 0.0005 * i));
+    ev.Accept(FloorIr(0.003, 1000, (40 + i) * kMs), Xi);
+    ev.Evaluate(Xi, (40 + i) * kMs, 1e-3, &W, &K, &info);
+    min_z = std::min(min_z, W(2));
+    max_lateral = std::max(max_lateral, std::hypot(W(0), W(1)));
+  }
+  EXPECT_GE(min_z, 0.0);
+  EXPECT_EQ(max_lateral, 0.0);
+  EXPECT_EQ(W.norm(), 0.0) << "4 mm above a 3 mm row: free";
+}
+
 TEST(IrEval, StaleIrIsReportedAndLeftToTheLoopToFade) {
   IrEvalParams p;
   p.max_age_s = 0.025;
