@@ -508,6 +508,11 @@ Vec3 LocalDirection(const Vec3& w, int j) {
   return (w + kColdLocalSpreads[cone] * (std::cos(phi) * e1 + std::sin(phi) * e2)).normalized();
 }
 
+// A direction more than 135 degrees from the best answer whose start
+// collides is tried once more from this fraction of the start's depth.
+constexpr double kColdPocketCos = -0.70710678118654752;  // cos 135 degrees
+constexpr double kColdPocketStart = 0.75;
+
 // Cold search: out-projections along request.cold_start_directions escape
 // directions and then around the best answer, each refined to its local
 // optimum as soon as it beats the best answer so far; the shallowest answer
@@ -516,9 +521,11 @@ Vec3 LocalDirection(const Vec3& w, int j) {
 // collides drops the direction (nothing shallower lies that way), so most
 // directions cost one early-out collision test, the sweeps that run are
 // short, and a free start there also reaches free pockets that a sweep from
-// outside never meets. With data.cold_search_bound every sweep starts at
-// that depth. Leaves the answer in *best, its features in
-// data.best_features; false when no direction reached a contact.
+// outside never meets. A colliding start on the far side of the body from
+// the best answer gets a second start a quarter closer in: the line may
+// cross a free pocket short of the best depth and collide again beyond it.
+// With data.cold_search_bound every sweep starts at that depth. Leaves the answer in *best, its
+// features in data.best_features; false when no direction reached a contact.
 bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
   PdQueryData& d = c.data;
   const std::array<Vec3, kColdStartDirections> fixed = FixedColdDirections(c, Size(c));
@@ -537,9 +544,15 @@ bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
       // improvement tolerance is worth a refinement.
       const double reach = best_norm * (1 - c.request.improvement_tolerance);
       // Most of these starts overlap (a shallower answer is rare).
-      if (SweepFrom(c, u * reach, Vec3::Zero(), &x, true, true) != SweepOutcome::kHit) {
-        continue;
+      SweepOutcome o = SweepFrom(c, u * reach, Vec3::Zero(), &x, true, true);
+      if (o == SweepOutcome::kStartColliding && have_best &&
+          u.dot(*best) < kColdPocketCos * best_norm) {
+        // The far side of the body the best answer leaves by: its start
+        // just inside the best depth can lie past a free pocket (the probe
+        // between a bunny's ears), so one more start closer in.
+        o = SweepFrom(c, u * (kColdPocketStart * reach), Vec3::Zero(), &x, true, true);
       }
+      if (o != SweepOutcome::kHit) continue;
       d.cold_answer_features.swap(d.best_features);  // keep the best answer's
     } else if (!Sweep(c, OutsideAlong(c, u), Vec3::Zero(), &x)) {
       continue;

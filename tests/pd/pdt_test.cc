@@ -378,6 +378,47 @@ TEST(PdtHardCases, ProbeFullyInsideAClosedBody) {
   EXPECT_NEAR(r.depth, 0.02 + 0.004, 1.5e-3);  // tessellation of tube and ball
 }
 
+// A block with a closed cavity under its top: the probe, a 2 cm cube, pokes
+// down through the 1 cm roof into the cavity. Out the top is 19 mm; down
+// into the cavity 11 mm, which is the PDt. The line down is free from 11
+// to 17 mm and collides again beyond (the cavity's floor), and the cavity is
+// only 4 mm wider than the probe, so no tilted direction is free at the
+// depth of the answer out the top either: the cold search must start the
+// line down again short of that depth.
+TEST(PdtHardCases, ColdSearchFindsTheWayIntoACavity) {
+  const Mesh outer = shapes::Box(Vec3(0.1, 0.1, 0.1));
+  const Mesh cavity = shapes::Box(Vec3(0.012, 0.012, 0.013));
+  std::vector<Vec3> v;
+  std::vector<Triangle> t;
+  for (const Vec3& p : outer.vertices()) v.push_back(p + Vec3(0, 0, -0.1));  // z in [-0.2, 0]
+  t = outer.triangles();
+  const Index base = static_cast<Index>(v.size());
+  for (const Vec3& p : cavity.vertices())
+    v.push_back(p + Vec3(0, 0, -0.023));  // z in [-0.036, -0.01]
+  for (const Triangle& f : cavity.triangles()) t.push_back({base + f[0], base + f[2], base + f[1]});
+  const ModelPtr block =
+      MakeModel(Mesh::FromArrays(std::move(v), std::move(t), "block with a cavity"));
+  ASSERT_TRUE(block->closed());
+  const ModelPtr cube = MakeModel(shapes::Box(Vec3(0.01, 0.01, 0.01)));
+  const Pose X_WA = Pose::FromTranslation(Vec3(0, 0, -0.009));  // z in [-0.019, 0.001]
+  PdQueryData data;
+  PenetrationResult r;
+  ComputePdt(*cube, X_WA, *block, Pose::Identity(), ColdRequest(), &data, &r);
+  ASSERT_NE(r.status, PdStatus::kFailed) << r.failure;
+  EXPECT_NEAR(r.depth, 0.011, 1e-6) << "the way out the top is 0.019";
+  EXPECT_LT(r.translation_W.z(), 0);
+  const FclModel fa(cube->mesh()), fb(block->mesh());
+  ExpectRealContact(fa, fb, Pose::Identity(), r);
+  // The oracle's view of the pocket: free at 11 to 17 mm down, colliding
+  // beyond, and colliding all the way up to 19 mm out the top.
+  EXPECT_FALSE(testing::FclCollide(fa, Pose::FromTranslation(Vec3(0, 0, -0.009 - 0.014)), fb,
+                                   Pose::Identity()));
+  EXPECT_TRUE(testing::FclCollide(fa, Pose::FromTranslation(Vec3(0, 0, -0.009 - 0.018)), fb,
+                                  Pose::Identity()));
+  EXPECT_TRUE(testing::FclCollide(fa, Pose::FromTranslation(Vec3(0, 0, -0.009 + 0.018)), fb,
+                                  Pose::Identity()));
+}
+
 TEST(PdtHardCases, ScalesFromMillimetresToKilometres) {
   for (double scale : {1e-3, 1.0, 1e3}) {
     SCOPED_TRACE(scale);
