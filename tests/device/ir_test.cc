@@ -28,6 +28,25 @@ IntermediateRep FloorIr(double depth, double k, std::int64_t receive_ns = 0) {
   return ir;
 }
 
+// Blend tests' parameters: a 10-tick blend, never stale, faded in by 20 ms.
+IrEvalParams BlendParams() {
+  IrEvalParams p;
+  p.blend_ticks = 10;
+  p.max_age_s = 1;
+  p.fade_in_time_s = 0.02;
+  return p;
+}
+
+// The proxy held at X on a 1 mm deep floor row (1 N at 1000 N/m) for 40
+// ticks from time 0: the blend done and, with BlendParams, the fade-in too.
+// Leaves the last output in *W.
+void SettleOnFloor(IrEvaluator* ev, const Pose& X, Vec6* W) {
+  Mat6 K;
+  IrEvalInfo info;
+  ev->Accept(FloorIr(0.001, 1000, 0), X);
+  for (int i = 0; i < 40; ++i) ev->Evaluate(X, i * kMs, 1e-3, W, &K, &info);
+}
+
 TEST(IrEval, RowPushesAlongNormalWithLinearisedDepth) {
   const IntermediateRep ir = FloorIr(0.002, 1000);
   Vec6 W;
@@ -56,17 +75,12 @@ TEST(IrEval, UnilateralRowStopsPushingWhenSeparated) {
 }
 
 TEST(IrEval, NewIrIsBlendedOverBlendTicks) {
-  IrEvalParams p;
-  p.blend_ticks = 10;
-  p.max_age_s = 1;  // never stale here
-  p.fade_in_time_s = 0.02;
-  IrEvaluator ev(p);
+  IrEvaluator ev(BlendParams());
   const Pose X = Pose::FromTranslation(Vec3(0, 0, 0.1));
-  ev.Accept(FloorIr(0.001, 1000, 0), X);
   Vec6 W;
   Mat6 K;
   IrEvalInfo info;
-  for (int i = 0; i < 40; ++i) ev.Evaluate(X, i * kMs, 1e-3, &W, &K, &info);  // settled, faded in
+  SettleOnFloor(&ev, X, &W);
   ASSERT_NEAR(W(2), 1.0, 1e-9);
   ev.Accept(FloorIr(0.003, 1000, 40 * kMs), X);  // a step from 1 N to 3 N
   double prev = W(2);
@@ -87,8 +101,7 @@ TEST(IrEval, BlendStaysContinuousWhenIrsArriveEveryTick) {
   Vec6 W;
   Mat6 K;
   IrEvalInfo info;
-  ev.Accept(FloorIr(0.001, 1000, 0), X);
-  for (int i = 0; i < 40; ++i) ev.Evaluate(X, i * kMs, 1e-3, &W, &K, &info);
+  SettleOnFloor(&ev, X, &W);
   double prev = W(2), max_step = 0;
   // Depth alternates 1 mm / 3 mm every tick: the output never jumps by the full 2 N.
   for (int i = 0; i < 50; ++i) {
@@ -101,17 +114,11 @@ TEST(IrEval, BlendStaysContinuousWhenIrsArriveEveryTick) {
 }
 
 TEST(IrEval, ABlendTowardsAHarderPushNeverPullsAsTheProxyLeaves) {
-  IrEvalParams p;
-  p.blend_ticks = 10;
-  p.max_age_s = 1;  // never stale here
-  p.fade_in_time_s = 0.02;
-  IrEvaluator ev(p);
-  const Pose X = Pose::FromTranslation(Vec3(0, 0, 0.1));
+  IrEvaluator ev(BlendParams());
   Vec6 W;
   Mat6 K;
   IrEvalInfo info;
-  ev.Accept(FloorIr(0.001, 1000, 0), X);
-  for (int i = 0; i < 40; ++i) ev.Evaluate(X, i * kMs, 1e-3, &W, &K, &info);
+  SettleOnFloor(&ev, Pose::FromTranslation(Vec3(0, 0, 0.1)), &W);
   ASSERT_NEAR(W(2), 1.0, 1e-9);
   // The next answers push harder (3 mm) and arrive every tick while the
   // proxy leaves the surface at 0.5 mm per tick: the blend must fade with
