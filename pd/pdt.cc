@@ -524,8 +524,9 @@ constexpr double kColdPocketStart = 0.75;
 // outside never meets. A colliding start on the far side of the body from
 // the best answer gets a second start a quarter closer in: the line may
 // cross a free pocket short of the best depth and collide again beyond it.
-// With data.cold_search_bound every sweep starts at that depth. Leaves the answer in *best, its
-// features in data.best_features; false when no direction reached a contact.
+// With data.cold_search_bound every sweep starts at that depth. Leaves the
+// answer in *best, its features in data.best_features; false when no
+// direction reached a contact.
 bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
   PdQueryData& d = c.data;
   const std::array<Vec3, kColdStartDirections> fixed = FixedColdDirections(c, Size(c));
