@@ -5,8 +5,8 @@
 // user feels anyway and is not part of the command). Contact keeps its
 // stiffness: the same press still pushes back. Both hold with late ticks
 // and the catch-up ticks after them, with answers 100 ms late, and with
-// stalls longer than the servo loop catches up. Simulated time (Rig), so it runs in
-// every preset.
+// stalls longer than the servo loop catches up. Simulated time (Rig), so it
+// runs in every preset.
 #include <gtest/gtest.h>
 
 #include <algorithm>
