@@ -50,121 +50,96 @@ Placed Place(const Mesh& m, const Pose& X) {
   return p;
 }
 
-// The edges' arcs on the Gauss map, in a tree of bounding caps, so that
-// only edge pairs whose caps meet reach the arc-crossing test. An edge's arc
-// runs between its two faces' normals (the minor arc: a convex polytope's
-// dihedral angles are below 180 degrees); its cap is centred on the arc's
-// midpoint with half the arc's angle as radius.
-class ArcTree {
- public:
-  struct Arc {
-    Vec3 n0, n1;  // the arc's end points (unit)
-    Vec3 plane;   // n1 x n0: the normal of the arc's great circle
-    Vec3 c;       // cap centre (unit)
-    double r;     // cap radius (rad)
-    std::size_t edge;
-  };
-  struct Node {
-    Vec3 c;                     // cap centre (unit)
-    double r;                   // cap radius (rad), covering every arc below
-    int first, count;           // leaf: arcs [first, first + count)
-    int left = -1, right = -1;  // inner node: children
-    bool leaf() const { return left < 0; }
-  };
+// An upper bound on the angle between unit vectors a and b, tight for small
+// angles: 2 asin(h) with h half the chord, and asin(h) <= h + h^3 /
+// (6 (1 - h^2)) (every term of asin's series past the first has a
+// coefficient of at most 1/6). Larger angles get the exact value.
+double CapAngle(const Vec3& a, const Vec3& b) {
+  const double h = 0.5 * (a - b).norm();
+  if (h < 0.5) return 2 * (h + h * h * h / (6 * (1 - h * h))) + 1e-12;
+  return std::atan2(a.cross(b).norm(), a.dot(b));
+}
 
-  /// `sign` flips the normals (B's arcs are those of its negated normals).
-  ArcTree(const std::vector<Edge>& edges, const std::vector<Vec3>& n, double sign) {
-    arcs_.reserve(edges.size());
-    for (std::size_t e = 0; e < edges.size(); ++e) {
-      const Vec3 n0 = sign * n[edges[e].f[0]];
-      const Vec3 n1 = sign * n[edges[e].f[1]];
-      const Vec3 plane = n1.cross(n0);
-      if (plane.squaredNorm() < 1e-24) continue;  // flat edge: no arc
-      const Vec3 mid = n0 + n1;
-      const double len = mid.norm();
-      if (len > 1e-9) {
-        arcs_.push_back({n0, n1, plane, mid / len, 0.5 * Angle(n0, n1), e});
-      } else {
-        arcs_.push_back({n0, n1, plane, n0, std::numbers::pi, e});
-      }
-    }
-    nodes_.reserve(2 * arcs_.size() / kLeafSize + 2);
-    if (!arcs_.empty()) Build(0, static_cast<int>(arcs_.size()));
-  }
-
-  const std::vector<Arc>& arcs() const { return arcs_; }
-  const std::vector<Node>& nodes() const { return nodes_; }
-
-  /// Whether two nodes' caps can share a point; generous by a small angle
-  /// so that rounding never drops a crossing.
-  static bool Meet(const Node& a, const Node& b) {
-    const double reach = a.r + b.r + 1e-7;
-    return reach >= std::numbers::pi || a.c.dot(b.c) >= std::cos(reach);
-  }
-
- private:
-  static constexpr int kLeafSize = 8;
-
-  // An upper bound on the angle between unit vectors a and b, tight for
-  // small angles: 2 asin(h) with h half the chord, and asin(h) <= h + h^3 /
-  // (6 (1 - h^2)) (every term of asin's series past the first has a
-  // coefficient of at most 1/6). Larger angles get the exact value.
-  static double Angle(const Vec3& a, const Vec3& b) {
-    const double h = 0.5 * (a - b).norm();
-    if (h < 0.5) return 2 * (h + h * h * h / (6 * (1 - h * h))) + 1e-12;
-    return std::atan2(a.cross(b).norm(), a.dot(b));
-  }
-
-  int Build(int first, int count) {
-    const int index = static_cast<int>(nodes_.size());
-    nodes_.push_back({Vec3::UnitZ(), std::numbers::pi, first, count});
-    Vec3 mean = Vec3::Zero();
-    Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
-    for (int i = first; i < first + count; ++i) {
-      mean += arcs_[i].c;
-      lo = lo.cwiseMin(arcs_[i].c);
-      hi = hi.cwiseMax(arcs_[i].c);
-    }
-    const bool split = count > kLeafSize;
-    if (split) {
-      int axis;
-      (hi - lo).maxCoeff(&axis);
-      const int half = count / 2;
-      std::nth_element(arcs_.begin() + first, arcs_.begin() + first + half,
-                       arcs_.begin() + first + count,
-                       [axis](const Arc& a, const Arc& b) { return a.c[axis] < b.c[axis]; });
-      const int left = Build(first, half);
-      const int right = Build(first + half, count - half);
-      nodes_[index].left = left;
-      nodes_[index].right = right;
-    }
-    // The cap: around the mean direction, wide enough for the children's
-    // caps (inner node) or the arcs' own (leaf).
-    if (mean.norm() > 1e-6 * count) {
-      const Vec3 c = mean.normalized();
-      double r = 0;
-      if (split) {
-        for (const int k : {nodes_[index].left, nodes_[index].right}) {
-          r = std::max(r, Angle(c, nodes_[k].c) + nodes_[k].r);
-        }
-      } else {
-        for (int i = first; i < first + count; ++i) {
-          r = std::max(r, Angle(c, arcs_[i].c) + arcs_[i].r);
-        }
-      }
-      nodes_[index].c = c;
-      nodes_[index].r = std::min(r, std::numbers::pi);
-    }
-    return index;
-  }
-
-  std::vector<Arc> arcs_;
-  std::vector<Node> nodes_;
-};
+// Whether two caps (centres ca, cb, radii ra, rb) can share a point;
+// generous by a small angle so that rounding never drops a crossing.
+bool CapsMeet(const Vec3& ca, double ra, const Vec3& cb, double rb) {
+  const double reach = ra + rb + 1e-7;
+  return reach >= std::numbers::pi || ca.dot(cb) >= std::cos(reach);
+}
 
 }  // namespace
 
+GaussArcTree::GaussArcTree(const Mesh& mesh) {
+  const std::vector<Edge>& edges = mesh.edges();
+  const std::vector<Vec3>& n = mesh.face_normals();
+  arcs_.reserve(edges.size());
+  for (std::size_t e = 0; e < edges.size(); ++e) {
+    if (edges[e].f[0] < 0 || edges[e].f[1] < 0) continue;  // boundary: not a polytope edge
+    const Vec3& n0 = n[edges[e].f[0]];
+    const Vec3& n1 = n[edges[e].f[1]];
+    const Vec3 plane = n1.cross(n0);
+    if (plane.squaredNorm() < 1e-24) continue;  // flat edge: no arc
+    const Vec3 mid = n0 + n1;
+    const double len = mid.norm();
+    if (len > 1e-9) {
+      arcs_.push_back({n0, n1, plane, mid / len, 0.5 * CapAngle(n0, n1), e});
+    } else {
+      arcs_.push_back({n0, n1, plane, n0, std::numbers::pi, e});
+    }
+  }
+  nodes_.reserve(2 * arcs_.size() / kLeafSize + 2);
+  if (!arcs_.empty()) Build(0, static_cast<int>(arcs_.size()));
+}
+
+int GaussArcTree::Build(int first, int count) {
+  const int index = static_cast<int>(nodes_.size());
+  nodes_.push_back({Vec3::UnitZ(), std::numbers::pi, first, count});
+  Vec3 mean = Vec3::Zero();
+  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  for (int i = first; i < first + count; ++i) {
+    mean += arcs_[i].c;
+    lo = lo.cwiseMin(arcs_[i].c);
+    hi = hi.cwiseMax(arcs_[i].c);
+  }
+  const bool split = count > kLeafSize;
+  if (split) {
+    int axis;
+    (hi - lo).maxCoeff(&axis);
+    const int half = count / 2;
+    std::nth_element(arcs_.begin() + first, arcs_.begin() + first + half,
+                     arcs_.begin() + first + count,
+                     [axis](const Arc& a, const Arc& b) { return a.c[axis] < b.c[axis]; });
+    const int left = Build(first, half);
+    const int right = Build(first + half, count - half);
+    nodes_[index].left = left;
+    nodes_[index].right = right;
+  }
+  // The cap: around the mean direction, wide enough for the children's caps
+  // (inner node) or the arcs' own (leaf).
+  if (mean.norm() > 1e-6 * count) {
+    const Vec3 c = mean.normalized();
+    double r = 0;
+    if (split) {
+      for (const int k : {nodes_[index].left, nodes_[index].right}) {
+        r = std::max(r, CapAngle(c, nodes_[k].c) + nodes_[k].r);
+      }
+    } else {
+      for (int i = first; i < first + count; ++i) {
+        r = std::max(r, CapAngle(c, arcs_[i].c) + arcs_[i].r);
+      }
+    }
+    nodes_[index].c = c;
+    nodes_[index].r = std::min(r, std::numbers::pi);
+  }
+  return index;
+}
+
 ConvexPdtResult ConvexPdt(const Mesh& A, const Pose& X_WA, const Mesh& B, const Pose& X_WB) {
+  return ConvexPdt(A, GaussArcTree(A), X_WA, B, GaussArcTree(B), X_WB);
+}
+
+ConvexPdtResult ConvexPdt(const Mesh& A, const GaussArcTree& arcs_a, const Pose& X_WA,
+                          const Mesh& B, const GaussArcTree& arcs_b, const Pose& X_WB) {
   const Placed a = Place(A, X_WA);
   const Placed b = Place(B, X_WB);
   // Separation along u: how far A's support lies beyond B's, i.e.
@@ -213,19 +188,20 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const Pose& X_WA, const Mesh& B, const 
   faces(a, A.triangles(), -1.0, b);
   // Edge pairs that form Minkowski faces: their arcs cross on the Gauss map
   // (of A's normals and B's negated normals). The cap trees hand over only
-  // pairs whose caps meet.
-  const ArcTree arcs_a(A.edges(), a.n, 1.0), arcs_b(B.edges(), b.n, -1.0);
+  // pairs whose caps meet. The trees are in the meshes' own frames: A's
+  // caps and arcs are turned into B's frame by R, B's are negated there.
+  const Mat3 R = X_WB.R.transpose() * X_WA.R;
   const auto& EA = A.edges();
   const auto& EB = B.edges();
-  auto edge_pair = [&](const ArcTree::Arc& x, const ArcTree::Arc& y) {
-    // Arcs (n1, n2) of A and (c, d) = (-m1, -m2) of B must cross.
-    const Vec3 &n1 = x.n0, &n2 = x.n1, &c = y.n0, &d = y.n1;
-    const Vec3& bxa = x.plane;  // n2 x n1
-    const Vec3& dxc = y.plane;  // d x c
-    const double cba = c.dot(bxa), dba = d.dot(bxa);
+  // A's arc x turned into B's frame (n1, n2 and their plane n2 x n1)
+  // against B's arc y, whose negation (c, d) = (-m1, -m2) must cross it.
+  auto edge_pair = [&](const Vec3& n1, const Vec3& n2, const Vec3& bxa, std::size_t edge_a,
+                       const GaussArcTree::Arc& y) {
+    const Vec3& dxc = y.plane;  // d x c = m2 x m1
+    const double cba = -y.n0.dot(bxa), dba = -y.n1.dot(bxa);
     const double adc = n1.dot(dxc), bdc = n2.dot(dxc);
     if (!(cba * dba < 0 && adc * bdc < 0 && cba * bdc > 0)) return;
-    const Edge& ea = EA[x.edge];
+    const Edge& ea = EA[edge_a];
     const Edge& eb = EB[y.edge];
     const Vec3 pa = a.v[ea.v[0]];
     const Vec3 da = a.v[ea.v[1]] - pa;
@@ -236,7 +212,7 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const Pose& X_WA, const Mesh& B, const 
     if (len < 1e-12 * da.norm() * db.norm()) return;
     u /= len;
     // Orient from B to A: A's outward normals there point against u.
-    if (u.dot(n1 + n2) > 0) u = -u;
+    if (u.dot(X_WB.R * (n1 + n2)) > 0) u = -u;
     consider(u, u.dot(pa - pb));
   };
   if (!arcs_a.nodes().empty() && !arcs_b.nodes().empty()) {
@@ -246,13 +222,15 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const Pose& X_WA, const Mesh& B, const 
     while (!stack.empty()) {
       const auto [ia, ib] = stack.back();
       stack.pop_back();
-      const ArcTree::Node& na = NA[ia];
-      const ArcTree::Node& nb = NB[ib];
-      if (!ArcTree::Meet(na, nb)) continue;
+      const GaussArcTree::Node& na = NA[ia];
+      const GaussArcTree::Node& nb = NB[ib];
+      if (!CapsMeet(R * na.c, na.r, -nb.c, nb.r)) continue;
       if (na.leaf() && nb.leaf()) {
         for (int i = na.first; i < na.first + na.count; ++i) {
+          const GaussArcTree::Arc& x = arcs_a.arcs()[i];
+          const Vec3 n1 = R * x.n0, n2 = R * x.n1, bxa = R * x.plane;
           for (int j = nb.first; j < nb.first + nb.count; ++j) {
-            edge_pair(arcs_a.arcs()[i], arcs_b.arcs()[j]);
+            edge_pair(n1, n2, bxa, x.edge, arcs_b.arcs()[j]);
           }
         }
       } else if (nb.leaf() || (!na.leaf() && na.r >= nb.r)) {

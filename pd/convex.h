@@ -6,6 +6,8 @@
 // where the contact-space iteration could stop on a local optimum.
 #pragma once
 
+#include <vector>
+
 #include "pd/mesh.h"
 #include "pd/types.h"
 
@@ -21,11 +23,51 @@ struct ConvexPdtResult {
   Vec3 translation_W = Vec3::Zero();  ///< moves A out of B, |t| = depth
 };
 
+/// The edges' arcs on a convex mesh's Gauss map, in the mesh's own frame, in
+/// a tree of bounding caps: ConvexPdt hands only the edge pairs whose caps
+/// meet to its arc-crossing test. An edge's arc runs between its two faces'
+/// normals (the minor arc: a convex polytope's dihedral angles are below 180
+/// degrees); its cap is centred on the arc's midpoint with half the arc's
+/// angle as radius. GeometryModel builds one per convex model, so that a
+/// query does not.
+class GaussArcTree {
+ public:
+  struct Arc {
+    Vec3 n0, n1;  ///< the arc's end points (unit face normals)
+    Vec3 plane;   ///< n1 x n0: the normal of the arc's great circle
+    Vec3 c;       ///< cap centre (unit)
+    double r;     ///< cap radius (rad)
+    std::size_t edge;
+  };
+  struct Node {
+    Vec3 c;                     ///< cap centre (unit)
+    double r;                   ///< cap radius (rad), covering every arc below
+    int first, count;           ///< leaf: arcs [first, first + count)
+    int left = -1, right = -1;  ///< inner node: children
+    bool leaf() const { return left < 0; }
+  };
+
+  explicit GaussArcTree(const Mesh& mesh);
+  const std::vector<Arc>& arcs() const { return arcs_; }
+  const std::vector<Node>& nodes() const { return nodes_; }
+
+ private:
+  static constexpr int kLeafSize = 8;
+  int Build(int first, int count);
+  std::vector<Arc> arcs_;
+  std::vector<Node> nodes_;
+};
+
 /// Exact PDt of convex A (pose X_WA) against convex B (X_WB).
 /// Cost: each face axis one product with the last support vertex, and a
 /// scan of the other body's vertices only where that bound does not rule
 /// it out; the edge pairs whose Gauss-map arcs' bounding caps meet (found
-/// by two cap trees built per call), instead of all E_A E_B.
+/// by the two meshes' arc trees, built here), instead of all E_A E_B.
 ConvexPdtResult ConvexPdt(const Mesh& A, const Pose& X_WA, const Mesh& B, const Pose& X_WB);
+
+/// The same with the meshes' arc trees built beforehand (`arcs_A` from A,
+/// `arcs_B` from B), as PDt's convex shortcut does with the models'.
+ConvexPdtResult ConvexPdt(const Mesh& A, const GaussArcTree& arcs_A, const Pose& X_WA,
+                          const Mesh& B, const GaussArcTree& arcs_B, const Pose& X_WB);
 
 }  // namespace hapticpd::pd

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <optional>
 
 #include "pd/bvh.h"
 #include "pd/convex.h"
@@ -25,6 +26,7 @@ class GeometryModel {
     for (const Vec3& v : mesh_.vertices()) {
       radius_about_com_ = std::max(radius_about_com_, (v - mass_.p_MC).norm());
     }
+    if (convex_) gauss_arcs_.emplace(mesh_);
   }
 
   const Mesh& mesh() const { return mesh_; }
@@ -34,6 +36,8 @@ class GeometryModel {
   bool closed() const { return mesh_.watertight(); }
   /// A convex polytope (closed, genus 0, no reflex edge).
   bool convex() const { return convex_; }
+  /// The Gauss-map arc tree ConvexPdt needs, for a convex model; else null.
+  const GaussArcTree* gauss_arcs() const { return gauss_arcs_ ? &*gauss_arcs_ : nullptr; }
   /// Largest distance of a vertex from the centre of mass (m): bounds the
   /// speed of any point under a rotation about the centre of mass.
   double radius_about_com() const { return radius_about_com_; }
@@ -52,6 +56,7 @@ class GeometryModel {
   MassProperties mass_;
   double radius_about_com_ = 0;
   bool convex_ = false;
+  std::optional<GaussArcTree> gauss_arcs_;
 };
 
 using ModelPtr = std::shared_ptr<const GeometryModel>;

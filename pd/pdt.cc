@@ -636,7 +636,8 @@ void PdtCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
     // Cold start between convex polytopes: the exact answer directly. The
     // iteration would only confirm it (each of its sweeps meets every
     // contact feature again), so it is skipped.
-    const ConvexPdtResult cr = ConvexPdt(A.mesh(), X_BA, B.mesh(), kX_BB);
+    const ConvexPdtResult cr =
+        ConvexPdt(A.mesh(), *A.gauss_arcs(), X_BA, B.mesh(), *B.gauss_arcs(), kX_BB);
     if (cr.overlapping) {
       ProximityRequest preq;
       preq.tolerance = c.eps;
