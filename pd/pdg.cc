@@ -659,7 +659,8 @@ bool ReprojectQpAnswer(PdgContext& c, const Best& best, const Pose& X_star, Pose
 // Steps 2-5, iterated from the free start *best: linearised contact space,
 // exact QP, re-projection; *best improves in place. A contact that brings no
 // improvement still tells where the contact space curves away: its rows join
-// the best contact's for up to two retries. Returns kPenetratingSolved at a
+// the best contact's for up to two retries, and then the step is tried
+// shorter (TryShorterSteps). Returns kPenetratingSolved at a
 // local optimum, kPenetratingCapReached at the iteration cap or the work
 // budget.
 // The work budget of one query's iterations (PenetrationRequest::
@@ -694,6 +695,27 @@ bool MayIterate(const PdgContext& c, WorkBudget* b) {
   b->costliest = std::max(b->costliest, now - b->last);
   b->last = now;
   return Fits(c, *b);
+}
+
+// The QP step to z_star whose re-projection brought no improvement, tried
+// at half and a quarter of its length: sigma is convex, so every point of
+// the segment from best to z_star is below best's sigma, and nearer best
+// the linearised contact space is nearer the true one (a long step
+// overshoots where the contact space curves). True when a shorter step's
+// contact improved *best (accepted).
+bool TryShorterSteps(PdgContext& c, Best* best, const Vec6& z_star) {
+  constexpr int kHalvings = 2;
+  Vec6 dz = z_star - best->z;
+  for (int h = 0; h < kHalvings; ++h) {
+    dz *= 0.5;
+    Pose X_new;
+    if (ReprojectQpAnswer(c, *best, At(c, best->z + dz), &X_new) &&
+        Sigma(c, Z(c, X_new)) < best->sigma * (1 - c.request.improvement_tolerance)) {
+      AcceptSwept(c, X_new, best);
+      return true;
+    }
+  }
+  return false;
 }
 
 PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations, WorkBudget* budget) {
@@ -739,6 +761,7 @@ PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations, WorkBud
         c.data.extra_features = c.data.ccd.features;
         continue;
       }
+      if (TryShorterSteps(c, best, z_star)) continue;
       status = PdStatus::kPenetratingSolved;  // no improvement: local optimum
       break;
     }

@@ -32,7 +32,7 @@ struct ColdThresholds {
 // What the cold search meets today on the 42 stored poses (measured values
 // with the ratios rounded up): lower these as it improves.
 constexpr ColdThresholds kColdPdt{1.001, 1.002, 1.03, 2, 0};
-constexpr ColdThresholds kColdPdg{1.001, 1.09, 20.9, 8, 2};
+constexpr ColdThresholds kColdPdg{1.001, 1.09, 20.9, 7, 2};
 constexpr ColdThresholds kColdPdgBudget{1.001, 1.17, 20.9, 12, 4};
 // With the 13 fixed escape directions only (no sphere lattice). These fail
 // the thresholds above: PDt p95 1.015, max 1.38, 3 above 1.01, 1 above 1.10.
