@@ -291,6 +291,10 @@ struct PdgContext {
   Vec6 metric;  // diagonal of M
   Mat3 R_BAb0;  // body frame at the query pose
   Vec3 c0;      // centre of mass at the query pose
+  // Cold: nothing cached to start from (a one-shot query, the first of a
+  // run, or coherence off). A coherent run whose cached poses all collide
+  // now is not: its frames keep their time for the servo rate.
+  bool cold;
 };
 
 double Sigma(const PdgContext& c, const Vec6& z) { return z.cwiseProduct(z).dot(c.metric); }
@@ -702,7 +706,9 @@ bool MayIterate(const PdgContext& c, WorkBudget* b) {
 // the segment from best to z_star is below best's sigma, and nearer best
 // the linearised contact space is nearer the true one (a long step
 // overshoots where the contact space curves). True when a shorter step's
-// contact improved *best (accepted).
+// contact improved *best (accepted). Cold queries only: in a coherent run
+// the next frame's iteration goes on from this answer with fresh
+// constraints, and the frame keeps its time for the servo rate.
 bool TryShorterSteps(PdgContext& c, Best* best, const Vec6& z_star) {
   constexpr int kHalvings = 2;
   Vec6 dz = z_star - best->z;
@@ -761,7 +767,7 @@ PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations, WorkBud
         c.data.extra_features = c.data.ccd.features;
         continue;
       }
-      if (TryShorterSteps(c, best, z_star)) continue;
+      if (c.cold && TryShorterSteps(c, best, z_star)) continue;
       status = PdStatus::kPenetratingSolved;  // no improvement: local optimum
       break;
     }
@@ -866,7 +872,8 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
                eps,
                PdgMetricDiagonal(A.mass(), request),
                R_BAb0,
-               X_BA * A.mass().p_MC};
+               X_BA * A.mass().p_MC,
+               !request.use_coherence || data->coherence_size() == 0};
   auto finish = [&](PdStatus status) {
     result->status = status;
     result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
@@ -911,10 +918,6 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
   };
   Pose X_coh;
   double cached_sigma = 0;
-  // Cold: nothing cached to start from (a one-shot query, the first of a
-  // run, or coherence off). A coherent run whose cached poses all collide
-  // now is not: its frames keep their time for the servo rate.
-  const bool cold = !request.use_coherence || data->coherence_size() == 0;
   if (CoherentStart(c, &X_coh, &cached_sigma)) AcceptSwept(c, X_coh, &best);
   // A coherent start much deeper than the answer it came from has lost that
   // answer's basin (the probe jumped, or the cached contact's way out closed
@@ -944,7 +947,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
   WorkBudget budget;
   budget.limit = request.pdg_iteration_budget;
   PdStatus status = IterateContactSpace(c, &best, &result->iterations, &budget);
-  if (cold && status != PdStatus::kPenetratingCapReached) {
+  if (c.cold && status != PdStatus::kPenetratingCapReached) {
     status = TurnStarts(c, &best, &result->iterations, &budget, status);
   }
 
