@@ -260,7 +260,7 @@ void SweepConvex(const AccuracyOptions& o, AccuracyReport* report, std::ostream*
   b.up = Vec3::UnitZ();
   b.tip_dir_A = Vec3::UnitX();
   b.slide = 0.006;
-  MakeTrajectory(&b, o.frames);
+  MakeTrajectory(&b, o.frames, o.max_slope);
   std::vector<Run> runs;
   for (const Setting& s : Settings(pd::PdMode::kTranslational, true)) {
     Run r{s, ReplayPd(*b.probe, *b.scene, b.frames, pd::PdMode::kTranslational, s.request), {}};
@@ -316,7 +316,7 @@ AccuracyReport RunAccuracy(const AccuracyOptions& o, std::ostream* log) {
   std::vector<Benchmark> benchmarks = BuildBenchmarks(o.models, o.tiny);
   for (Benchmark& b : benchmarks) {
     for (const std::string& n : b.notes) report.notes.push_back(b.name + ": " + n);
-    MakeTrajectory(&b, o.frames);
+    MakeTrajectory(&b, o.frames, o.max_slope);
     // Mesh resolution on the first benchmark (stick vs bunny): 1K, 5K, 20K
     // and the full model, decimated with OpenMesh.
     std::vector<pd::ModelPtr> coarse;

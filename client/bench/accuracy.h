@@ -28,13 +28,16 @@
 #include <string>
 #include <vector>
 
+#include "client/bench/scenarios.h"
+
 namespace hapticpd::bench {
 
 struct AccuracyOptions {
   std::string models;  ///< folder of the shared models ("" or missing: stand-ins)
   int frames = 500;    ///< trajectory length per benchmark
-  int poses = 12;      ///< reference poses per benchmark (expensive ground truth)
-  bool tiny = false;   ///< small procedural meshes (tests)
+  double max_slope = kTrajectoryMaxSlope;  ///< MakeTrajectory's
+  int poses = 12;     ///< reference poses per benchmark (expensive ground truth)
+  bool tiny = false;  ///< small procedural meshes (tests)
   std::uint64_t seed = 1;
   int pdt_directions = 200;  ///< directional samples per PDt reference
   int pdg_rotations = 16;    ///< rotation samples per PDg reference

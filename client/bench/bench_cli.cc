@@ -51,7 +51,7 @@ std::vector<bench::Benchmark> PrepareBenchmarks(const std::string& command, cons
   }
   std::vector<bench::Benchmark> benchmarks = bench::BuildBenchmarks(models, o.tiny);
   for (bench::Benchmark& b : benchmarks) {
-    bench::MakeTrajectory(&b, o.frames);
+    bench::MakeTrajectory(&b, o.frames, o.max_slope);
     notes << "== " << b.name << ": " << b.probe_name << " (" << b.probe->mesh().num_triangles()
           << " triangles) vs " << b.scene_name << " (" << b.scene->mesh().num_triangles()
           << " triangles), " << b.frames.size() << " frames at 1 kHz\n";
@@ -69,6 +69,20 @@ void AddCommonBenchOptions(CLI::App* cmd, const std::shared_ptr<BenchOptions>& o
       ->each([o](const std::string&) { o->models_given = true; });
   cmd->add_option("--frames", o->frames, "Frames of each 1 kHz trajectory")
       ->check(CLI::Range(8, 1000000))
+      ->capture_default_str();
+  cmd->add_option("--max-slope", o->max_slope,
+                  "Steepest surface the tip follows while sliding (rise over run; inf: the raw "
+                  "height under it, which jumps at edges: a teleport of the probe)")
+      ->check(CLI::Validator(
+          [](std::string& s) -> std::string {
+            char* end = nullptr;
+            const double v = std::strtod(s.c_str(), &end);
+            if (end == s.c_str() || *end != '\0' || !(v >= 0)) {
+              return "must be a number >= 0 (inf: no limit), got '" + s + "'";
+            }
+            return {};
+          },
+          "SLOPE >= 0"))
       ->capture_default_str();
   cmd->add_flag("--json", o->json, "Print JSON (notes go to stderr)");
   cmd->add_flag("--tiny", o->tiny,

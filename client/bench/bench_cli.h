@@ -23,6 +23,7 @@ struct BenchOptions {
   std::string models;
   bool models_given = false;
   int frames = 0;
+  double max_slope = bench::kTrajectoryMaxSlope;  ///< MakeTrajectory's
   bool json = false;
   bool tiny = false;
   std::string csv;

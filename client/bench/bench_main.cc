@@ -41,6 +41,7 @@ void RunAccuracyCmd(const BenchOptions& o) {
   bench::AccuracyOptions a;
   a.models = ResolveModels("accuracy", o.models, o.models_given);
   a.frames = o.frames;
+  a.max_slope = o.max_slope;
   a.poses = o.poses;
   a.tiny = o.tiny;
   a.seed = o.seed;
@@ -156,6 +157,9 @@ void RegisterOracleBenches(CLI::App& app) {
       if (o->models_given) o->command_line += " --models " + o->models;
       o->command_line += " --frames " + std::to_string(o->frames) + " --poses " +
                          std::to_string(o->poses) + " --seed " + std::to_string(o->seed);
+      if (o->max_slope != bench::kTrajectoryMaxSlope) {
+        o->command_line += fmt::format(" --max-slope {}", o->max_slope);
+      }
       if (o->tiny) o->command_line += " --tiny";
       if (!o->svg_dir.empty()) o->command_line += " --svg " + o->svg_dir;
       RunAccuracyCmd(*o);

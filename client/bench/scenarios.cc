@@ -135,7 +135,11 @@ Vec3 SmoothNormal(const pd::Mesh& m, const Vec3& p, double radius, int face) {
 /// press in along the normal to 2 % of the probe's size, slide along a figure
 /// eight while pressed (the tip follows the surface height under it), and come
 /// back out; the probe tilts slowly by up to 10 degrees about its tip.
-void MakeTrajectory(Benchmark* b, int num_frames) {
+void MakeTrajectory(Benchmark* b, int num_frames, double max_slope) {
+  if (!(max_slope >= 0)) {
+    throw std::invalid_argument("trajectory max slope must be >= 0 (infinity: no limit), got " +
+                                std::to_string(max_slope));
+  }
   const pd::Mesh& scene = b->scene->mesh();
   const pd::Mesh& probe = b->probe->mesh();
   const double probe_size = probe.size();
@@ -212,6 +216,9 @@ void MakeTrajectory(Benchmark* b, int num_frames) {
   b->frames.clear();
   b->frames.reserve(num_frames);
   Vec3 surface = b->p_start;
+  Vec3 last_offset = Vec3::Zero();
+  double max_step = 0;  // of the tip between frames
+  Vec3 last_tip = b->p_start;
   for (int f = 0; f < num_frames; ++f) {
     Frame fr;
     double h = 0;  // height of the tip above the surface along n
@@ -230,17 +237,30 @@ void MakeTrajectory(Benchmark* b, int num_frames) {
       h = -b->press +
           (b->press + above) * smooth(static_cast<double>(f - n_press - n_slide) / (n_release - 1));
     }
-    // Follow the surface under the tangential offset.
-    const Vec3 o = b->p_start + offset + n * (0.25 * probe_size);
+    // Follow the surface under the tangential offset: its height along n
+    // changes by at most max_slope times the tangential step, and stays where
+    // the ray misses (unlimited: the ray's height as it is).
     if (offset.squaredNorm() > 0) {
-      if (const auto hit = RayCast(scene, o, -n)) surface = o - n * hit->first;
-    } else {
+      const Vec3 o = b->p_start + offset + n * (0.25 * probe_size);
+      const auto hit = RayCast(scene, o, -n);
+      if (!std::isfinite(max_slope)) {
+        if (hit) surface = o - n * hit->first;
+      } else {
+        const Vec3 level = surface + (offset - last_offset);  // the same height
+        const double rise = hit ? (o - n * hit->first - level).dot(n) : 0.0;
+        const double limit = max_slope * (offset - last_offset).norm();
+        surface = level + n * std::clamp(rise, -limit, limit);
+      }
+    } else if (fr.phase == 0) {
       surface = b->p_start;
-    }
+    }  // the release goes straight out from where the slide ended
+    last_offset = offset;
     const double u = static_cast<double>(f) / num_frames;
     const Mat3 R = Eigen::AngleAxisd(max_tilt * std::sin(2 * std::numbers::pi * u), t2) *
                    Eigen::AngleAxisd(0.5 * max_tilt * std::sin(4 * std::numbers::pi * u), t1) * R0;
     const Vec3 tip = surface + n * h;
+    if (f > 0) max_step = std::max(max_step, (tip - last_tip).norm());
+    last_tip = tip;
     fr.X_WA = Pose{R, tip - R * p_tip_A};
     fr.commanded = std::max(0.0, -h);
     b->frames.push_back(fr);
@@ -250,7 +270,9 @@ void MakeTrajectory(Benchmark* b, int num_frames) {
      << b->p_start.z() << ") (candidate " << rank << " of " << candidates.size() << ", probe spun "
      << spin << " deg about the normal for a free start), normal (" << n.x() << ", " << n.y()
      << ", " << n.z() << "); press " << b->press * 1e3 << " mm (2% of the probe's "
-     << probe_size * 1e3 << " mm), slide +-" << b->slide * 1e3 << " mm, tilt up to 10 deg";
+     << probe_size * 1e3 << " mm), slide +-" << b->slide * 1e3 << " mm, tilt up to 10 deg; "
+     << "the tip follows slopes up to " << max_slope << " and moves at most " << max_step * 1e3
+     << " mm between frames";
   b->notes.push_back(os.str());
 }
 

@@ -27,10 +27,11 @@ struct BenchArgs {
   std::string frames_csv;  ///< per-frame CSV (empty: none)
   std::string benchmark;   ///< run only this benchmark (empty: all)
   int num_frames = 2000;
+  double max_slope = kTrajectoryMaxSlope;  ///< MakeTrajectory's
 };
 
 /// Parses [--models DIR] [--frames N] [--csv FILE] [--frames-csv FILE]
-/// [--benchmark NAME]
+/// [--benchmark NAME] [--max-slope S]
 /// (each also as --flag=VALUE) over the defaults in `*args`; prints the usage
 /// of `program` and returns false on anything else.
 inline bool ParseBenchArgs(int argc, char** argv, const char* program, BenchArgs* args) {
@@ -52,10 +53,12 @@ inline bool ParseBenchArgs(int argc, char** argv, const char* program, BenchArgs
       args->benchmark = v;
     } else if (const char* v = value("--frames")) {
       args->num_frames = std::max(8, std::atoi(v));
+    } else if (const char* v = value("--max-slope"); v && std::strtod(v, nullptr) >= 0) {
+      args->max_slope = std::strtod(v, nullptr);
     } else {
       std::cerr << "usage: " << program
                 << " [--models DIR] [--frames N] [--csv FILE] [--frames-csv FILE] "
-                   "[--benchmark NAME]\n";
+                   "[--benchmark NAME] [--max-slope S (>= 0, inf)]\n";
       return false;
     }
   }
@@ -63,8 +66,8 @@ inline bool ParseBenchArgs(int argc, char** argv, const char* program, BenchArgs
 }
 
 /// Builds the benchmark's trajectory and prints its heading and notes.
-inline void StartBenchmark(Benchmark* b, int num_frames) {
-  MakeTrajectory(b, num_frames);
+inline void StartBenchmark(Benchmark* b, int num_frames, double max_slope) {
+  MakeTrajectory(b, num_frames, max_slope);
   std::cout << "== " << b->name << ": probe " << b->probe_name << " ("
             << b->probe->mesh().num_triangles() << " triangles) vs " << b->scene_name << " ("
             << b->scene->mesh().num_triangles() << " triangles), " << b->frames.size()
@@ -123,7 +126,7 @@ std::vector<Summary> ReplayAll(BenchRun* run, Replay replay, Report report,
                                WriteFrame write_frame) {
   std::vector<Summary> summaries;
   for (Benchmark& b : run->benchmarks) {
-    StartBenchmark(&b, run->args.num_frames);
+    StartBenchmark(&b, run->args.num_frames, run->args.max_slope);
     std::vector<Record> records;
     summaries.push_back(replay(b, &records));
     report(b, records, summaries.back());
