@@ -929,7 +929,11 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
   const bool lost_basin =
       best.valid && std::sqrt(best.sigma) > 1.2 * std::sqrt(cached_sigma) + slack;
   if (lost_basin && !request.pdg_always_pdt_start) data->pdt.ResetCoherence();
-  if (!best.valid || request.pdg_always_pdt_start || lost_basin) {
+  // The periodic check against PDt (pdg_pdt_check_period).
+  const bool check_due = request.pdg_pdt_check_period > 0 &&
+                         ++data->queries_since_pdt_ >= request.pdg_pdt_check_period;
+  if (!best.valid || request.pdg_always_pdt_start || lost_basin || check_due) {
+    data->queries_since_pdt_ = 0;
     run_pdt(lost_basin && !request.pdg_always_pdt_start);
     if (pdt_best.valid && pdt_best.sigma < best.sigma) {
       best = pdt_best;

@@ -23,7 +23,9 @@
 // the iteration starts from the PDt answer (no usable coherence, or
 // PenetrationRequest::pdg_always_pdt_start) it never ends above PDt
 // (keep-the-best); from a motion-coherent start it follows its own local
-// optimum, which is usually lower and occasionally higher than PDt's.
+// optimum, which is usually lower and occasionally higher than PDt's
+// (PenetrationRequest::pdg_pdt_check_period compares it with PDt's every
+// that many queries).
 //
 // Out-projection (a free pose back to the contact space towards q_o) is exact
 // translational CCD of the centre of mass at the rotation reached, and a
@@ -158,6 +160,7 @@ class PdgQueryData {
   std::array<CoherenceEntry, kCoherenceSlots> coherence;
   int coherence_head_ = 0;
   int coherence_size_ = 0;
+  int queries_since_pdt_ = 0;  ///< penetrating queries since PDt last ran
   void Remember(const CoherenceEntry& e);
 
   PdQueryData pdt;               ///< PDt's own session state (the PDt start)
