@@ -724,6 +724,11 @@ bool TryShorterSteps(PdgContext& c, Best* best, const Vec6& z_star) {
   return false;
 }
 
+// The work (box and triangle pair tests) a coherent query may have spent
+// before the periodic check against PDt runs in it: a quarter of the default
+// budget.
+constexpr std::uint64_t kPdtCheckWork = 2000;
+
 PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations, WorkBudget* budget) {
   PdStatus status = PdStatus::kPenetratingCapReached;
   bool have_extra = false;
@@ -879,6 +884,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
     result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
   };
 
+  const std::uint64_t work_at_start = Work(c);
   if (!Colliding(c, X_BA)) {
     if (request.use_coherence) data->Remember({X_BA, X_BA, Vec6::Zero(), false, 0.0});
     // Keep PDt's coherence in step when it runs every query.
@@ -929,10 +935,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
   const bool lost_basin =
       best.valid && std::sqrt(best.sigma) > 1.2 * std::sqrt(cached_sigma) + slack;
   if (lost_basin && !request.pdg_always_pdt_start) data->pdt.ResetCoherence();
-  // The periodic check against PDt (pdg_pdt_check_period).
-  const bool check_due = request.pdg_pdt_check_period > 0 &&
-                         ++data->queries_since_pdt_ >= request.pdg_pdt_check_period;
-  if (!best.valid || request.pdg_always_pdt_start || lost_basin || check_due) {
+  if (!best.valid || request.pdg_always_pdt_start || lost_basin) {
     data->queries_since_pdt_ = 0;
     run_pdt(lost_basin && !request.pdg_always_pdt_start);
     if (pdt_best.valid && pdt_best.sigma < best.sigma) {
@@ -953,6 +956,21 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
   PdStatus status = IterateContactSpace(c, &best, &result->iterations, &budget);
   if (c.cold && status != PdStatus::kPenetratingCapReached) {
     status = TurnStarts(c, &best, &result->iterations, &budget, status);
+  }
+  // The periodic check against PDt (pdg_pdt_check_period): once due, it runs
+  // after the iteration of the first query that has spent little work (a
+  // costly frame is not made costlier), and where PDt's answer is better the
+  // iteration goes on from it.
+  if (!pdt_done && request.pdg_pdt_check_period > 0 &&
+      ++data->queries_since_pdt_ >= request.pdg_pdt_check_period &&
+      Work(c) - work_at_start <= kPdtCheckWork) {
+    run_pdt(false);
+    data->queries_since_pdt_ = 0;
+    if (pdt_best.valid && pdt_best.sigma < best.sigma) {
+      best = pdt_best;
+      FeaturesFromPdt(pdt, &data->best_features);
+      status = IterateContactSpace(c, &best, &result->iterations, &budget);
+    }
   }
 
   // Verified answer: a contact along its own motion; else the PDt answer.

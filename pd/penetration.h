@@ -108,13 +108,15 @@ struct PenetrationRequest {
   /// sqrt(sigma) <= |PDt| on every query at the price of a PDt; without
   /// coherence (use_coherence false) it always holds.
   bool pdg_always_pdt_start = false;
-  /// PDg only, coherent runs: every this many queries PDt runs too (from its
-  /// own coherence cache) and PDg starts from the better of its answer and
-  /// the motion-coherent start; 0: never. The coherent answer can stay in a
-  /// basin where the probe is turned while PDt's answer, under the moving
-  /// probe, gets shallower (on the hammer benchmark up to 1.36 times PDt's
-  /// depth for 40 frames without it, 1.03 times at 16): this bounds how long
-  /// such a drift lasts, for one PDt every that many frames.
+  /// PDg only, coherent runs: every this many penetrating queries PDt runs
+  /// too (from its own coherence cache), after the iteration of the first
+  /// query, once due, that has spent at most 2,000 box and triangle pair
+  /// tests, and where PDt's answer is better the iteration goes on from it;
+  /// 0: never. The coherent answer can stay in a basin where the probe is
+  /// turned while PDt's answer, under the moving probe, gets shallower (on
+  /// the hammer benchmark up to 1.36 times PDt's depth for 40 frames without
+  /// the check, 1.06 times with it): this bounds how long such a drift lasts,
+  /// for about one PDt every that many frames.
   int pdg_pdt_check_period = 16;
   /// PDg only, cold queries (nothing in the coherence cache: a one-shot
   /// query, the first of a run, or use_coherence false): how many turn
