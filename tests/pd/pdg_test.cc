@@ -12,9 +12,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <iostream>
 #include <limits>
 #include <random>
+#include <utility>
 #include <vector>
 
 #include "client/bench/scenarios.h"
@@ -818,6 +820,32 @@ TEST(PdgCoherence, CoherentStartsAreVerifiedAndCloseToPdtOrBetter) {
   EXPECT_LT(st.worst_ratio, 1.5);
 }
 
+// bench_pdg's hammer-vs-beast benchmark (the shared models in `beast`'s
+// folder) with its 2,000-frame trajectory (bench::MakeTrajectory's
+// `max_slope`).
+bench::Benchmark HammerBenchmark(const std::filesystem::path& beast, double max_slope) {
+  std::vector<bench::Benchmark> benchmarks = bench::BuildBenchmarks(beast.parent_path().string());
+  bench::Benchmark b = std::move(benchmarks.at(2));
+  bench::MakeTrajectory(&b, 2000, max_slope);
+  return b;
+}
+
+// Frames 0..last of `b`'s trajectory through PDg and PDt side by side (each
+// with its own coherence, as bench_pdg runs them): on_frame(i, pdg, pdt).
+template <typename OnFrame>
+void ReplayWithPdt(const bench::Benchmark& b, std::size_t last, const PenetrationRequest& request,
+                   OnFrame&& on_frame) {
+  PdgQueryData data;
+  PdQueryData pdt_data;
+  PenetrationResult r, pdt;
+  for (std::size_t i = 0; i <= last; ++i) {
+    const Pose& X_WA = b.frames[i].X_WA;
+    ComputePdg(*b.probe, X_WA, *b.scene, Pose::Identity(), request, &data, &r);
+    ComputePdt(*b.probe, X_WA, *b.scene, Pose::Identity(), request, &pdt_data, &pdt);
+    on_frame(i, r, pdt);
+  }
+}
+
 // bench_pdg's hammer-vs-beast trajectory with the tip following the raw
 // surface height (unlimited slope: at frame 1120 the ray passes an edge and
 // the probe jumps 1 cm): at frame 1120 the coherent start
@@ -830,25 +858,19 @@ TEST(PdgCoherence, CoherentStartsAreVerifiedAndCloseToPdtOrBetter) {
 // must not exceed PDt.
 TEST(PdgCoherence, AStartThatLostItsBasinIsComparedWithPdt) {
   HAPTICPD_REQUIRE_MODEL(path, "beast.obj");
-  std::vector<bench::Benchmark> benchmarks = bench::BuildBenchmarks(path.parent_path().string());
-  bench::Benchmark& b = benchmarks.at(2);
+  const bench::Benchmark b = HammerBenchmark(path, std::numeric_limits<double>::infinity());
   ASSERT_EQ(b.name, "hammer-beast20k");
-  bench::MakeTrajectory(&b, 2000, std::numeric_limits<double>::infinity());
   const FclModel fa(b.probe->mesh()), fb(b.scene->mesh());
   const PenetrationRequest request;
-  PdgQueryData data;
-  PdQueryData pdt_data;
-  PenetrationResult r, pdt;
   int checked = 0;
-  for (std::size_t i = 0; i <= 1135; ++i) {
-    const Pose& X_WA = b.frames[i].X_WA;
-    ComputePdg(*b.probe, X_WA, *b.scene, Pose::Identity(), request, &data, &r);
-    ComputePdt(*b.probe, X_WA, *b.scene, Pose::Identity(), request, &pdt_data, &pdt);
-    if (i < 1100 || r.status == PdStatus::kSeparated) continue;
-    SCOPED_TRACE(i);
-    ++checked;
-    ExpectVerifiedPdg(*b.probe, X_WA, Pose::Identity(), fa, fb, r, pdt.depth, request);
-  }
+  ReplayWithPdt(b, 1135, request,
+                [&](std::size_t i, const PenetrationResult& r, const PenetrationResult& pdt) {
+                  if (i < 1100 || r.status == PdStatus::kSeparated) return;
+                  SCOPED_TRACE(i);
+                  ++checked;
+                  ExpectVerifiedPdg(*b.probe, b.frames[i].X_WA, Pose::Identity(), fa, fb, r,
+                                    pdt.depth, request);
+                });
   EXPECT_GT(checked, 30);
 }
 
@@ -862,23 +884,16 @@ TEST(PdgCoherence, AStartThatLostItsBasinIsComparedWithPdt) {
 // (the check is what bounds it).
 TEST(PdgCoherence, ThePeriodicPdtCheckBoundsTheDriftAbovePdt) {
   HAPTICPD_REQUIRE_MODEL(path, "beast.obj");
-  std::vector<bench::Benchmark> benchmarks = bench::BuildBenchmarks(path.parent_path().string());
-  bench::Benchmark& b = benchmarks.at(2);
+  const bench::Benchmark b = HammerBenchmark(path, bench::kTrajectoryMaxSlope);
   ASSERT_EQ(b.name, "hammer-beast20k");
-  bench::MakeTrajectory(&b, 2000);
   auto worst_ratio = [&](const PenetrationRequest& request) {
-    PdgQueryData data;
-    PdQueryData pdt_data;
-    PenetrationResult r, pdt;
     double worst = 0;
-    for (std::size_t i = 0; i <= 1200; ++i) {
-      const Pose& X_WA = b.frames[i].X_WA;
-      ComputePdg(*b.probe, X_WA, *b.scene, Pose::Identity(), request, &data, &r);
-      ComputePdt(*b.probe, X_WA, *b.scene, Pose::Identity(), request, &pdt_data, &pdt);
-      if (r.status == PdStatus::kSeparated || !(pdt.depth > 0)) continue;
-      EXPECT_TRUE(std::isfinite(r.depth)) << i;
-      worst = std::max(worst, r.depth / pdt.depth);
-    }
+    ReplayWithPdt(b, 1200, request,
+                  [&](std::size_t i, const PenetrationResult& r, const PenetrationResult& pdt) {
+                    if (r.status == PdStatus::kSeparated || !(pdt.depth > 0)) return;
+                    EXPECT_TRUE(std::isfinite(r.depth)) << i;
+                    worst = std::max(worst, r.depth / pdt.depth);
+                  });
     return worst;
   };
   const PenetrationRequest checked;
