@@ -53,8 +53,14 @@ inline bool ParseBenchArgs(int argc, char** argv, const char* program, BenchArgs
       args->benchmark = v;
     } else if (const char* v = value("--frames")) {
       args->num_frames = std::max(8, std::atoi(v));
-    } else if (const char* v = value("--max-slope"); v && std::strtod(v, nullptr) >= 0) {
-      args->max_slope = std::strtod(v, nullptr);
+    } else if (const char* v = value("--max-slope")) {
+      char* end = nullptr;
+      args->max_slope = std::strtod(v, &end);
+      if (end == v || *end != '\0' || !(args->max_slope >= 0)) {
+        std::cerr << program << ": --max-slope: must be a number >= 0 (inf: no limit), got '" << v
+                  << "'\n";
+        return false;
+      }
     } else {
       std::cerr << "usage: " << program
                 << " [--models DIR] [--frames N] [--csv FILE] [--frames-csv FILE] "
