@@ -258,11 +258,17 @@ Vec3 OutsideAlong(const PdtContext& c, const Vec3& u) {
   return u * std::max(s, 2 * c.eps);
 }
 
+// Which pushes of the stored configurations CoherentStart tries.
+enum class Pushes : std::uint8_t {
+  kAll,      // both pushes of the two nearest entries
+  kFarOnly,  // the nearest entry's farther push only
+};
+
 // Out-projection from the motion-coherence cache: a contact offset reached
 // by sweeping from a stored configuration (pushed out a little along its
 // direction) to the query pose, or false. The sweep itself checks that its
 // start is free.
-bool CoherentStart(PdtContext& c, bool try_pushes, Vec3* x_contact) {
+bool CoherentStart(PdtContext& c, Pushes pushes, Vec3* x_contact) {
   PdQueryData& d = c.data;
   if (!c.request.use_coherence || d.coherence_size_ == 0) return false;
   const Vec3& p_BAo = c.X_BA.t;
@@ -282,10 +288,12 @@ bool CoherentStart(PdtContext& c, bool try_pushes, Vec3* x_contact) {
       dist[1] = di;
     }
   }
-  for (int k = 0; try_pushes && k < 2 && order[k] >= 0; ++k) {
+  const int entries = pushes == Pushes::kAll ? 2 : 1;
+  for (int k = 0; k < entries && order[k] >= 0; ++k) {
     const PdQueryData::CoherenceEntry& e = d.coherence[order[k]];
     // A stored contact is touching: push it out a little along its direction.
     for (double push : {2.0, 20.0}) {
+      if (pushes == Pushes::kFarOnly && push < 20.0) continue;
       const Vec3 p_B = e.p_BAo + e.dir_B * (push * c.eps);
       const Vec3 x = p_B - c.X_BA.t;
       switch (SweepFrom(c, x, Vec3::Zero(), x_contact, true)) {
@@ -617,16 +625,22 @@ void PdtCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
   Vec3 best = Vec3::Zero();
   bool have_best = false;
   // Contact-space start; when its in-projection collides, the probe has
-  // moved into the surface faster than the stored contact can follow, and
-  // small push-outs of stored configurations would collide too: go
-  // straight to the pull-back along the stored direction.
+  // moved into the surface faster than the stored contact can follow (or
+  // the stored planes miss a contact that is about to close): the small
+  // push-outs of stored configurations would collide too, so only the
+  // nearest one's farther push is tried before the pull-back along the
+  // stored direction. That push still lands next to the answer where a probe
+  // slides along a groove; the pull-back from outside lands several
+  // iterations away.
   Vec3 x_c;
   const SweepOutcome from_space = ContactSpaceStart(c, &x_c);
   if (from_space == SweepOutcome::kHit) {
     best = x_c;
     have_best = true;
     data->best_features = data->ccd.features;
-  } else if (CoherentStart(c, from_space != SweepOutcome::kStartColliding, &x_c)) {
+  } else if (CoherentStart(
+                 c, from_space == SweepOutcome::kStartColliding ? Pushes::kFarOnly : Pushes::kAll,
+                 &x_c)) {
     best = x_c;
     have_best = true;
     data->best_features = data->ccd.features;
