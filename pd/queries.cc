@@ -947,8 +947,8 @@ struct SweptPlaneSides {
   std::array<bool, 3> a_side{false, false, false}, b_side{false, false, false};
   double margin = 0;
 
-  /// False when A's whole triangle stays on one side of B's plane (no event
-  /// at all; sb and b_side are then not computed).
+  /// False when either triangle stays wholly on one side of the other's
+  /// plane (no event at all; sb and b_side may then not be computed).
   bool Compute(const TriB& ta, const Vec3& na, const TriB& tb, const Vec3& nb, const Vec3& d_B,
                double t_best) {
     margin = 1e-12 * (1.0 + tb.v[0].cwiseAbs().maxCoeff() + d_B.norm());
@@ -968,6 +968,12 @@ struct SweptPlaneSides {
       for (int k = 0; k < 3; ++k) {
         sb[k] = na.dot(tb.v[k] - ta.v[0]);
         b_side[k] = StaysSide(sb[k], shift, margin);
+      }
+      // B's whole triangle stays on one side of A's plane, where every
+      // feature of A lies: no event either.
+      if (b_side[0] && b_side[1] && b_side[2] && ((sb[0] > 0) == (sb[1] > 0)) &&
+          ((sb[1] > 0) == (sb[2] > 0))) {
+        return false;
       }
     }
     return true;
