@@ -946,37 +946,42 @@ struct SweptPlaneSides {
   std::array<double, 3> sa{0, 0, 0}, sb{0, 0, 0};
   std::array<bool, 3> a_side{false, false, false}, b_side{false, false, false};
   double margin = 0;
+  /// Some event is possible: neither triangle stays wholly on one side of
+  /// the other's plane (where every feature of the other lies).
+  bool events = true;
+  /// One triangle stays farther than the feature tolerance from the other's
+  /// plane, on one side: no feature pair of the two comes within it either.
+  bool apart = false;
 
-  /// False when either triangle stays wholly on one side of the other's
-  /// plane (no event at all; sb and b_side may then not be computed).
-  bool Compute(const TriB& ta, const Vec3& na, const TriB& tb, const Vec3& nb, const Vec3& d_B,
-               double t_best) {
+  void Compute(const TriB& ta, const Vec3& na, const TriB& tb, const Vec3& nb, const Vec3& d_B,
+               double t_best, double feature_tol) {
     margin = 1e-12 * (1.0 + tb.v[0].cwiseAbs().maxCoeff() + d_B.norm());
+    auto one_side = [](const std::array<bool, 3>& side, const std::array<double, 3>& sv) {
+      return side[0] && side[1] && side[2] && ((sv[0] > 0) == (sv[1] > 0)) &&
+             ((sv[1] > 0) == (sv[2] > 0));
+    };
+    std::array<bool, 3> far{false, false, false};
     if (nb.squaredNorm() > 0) {
       const double shift = t_best * nb.dot(d_B);
       for (int k = 0; k < 3; ++k) {
         sa[k] = nb.dot(ta.v[k] - tb.v[0]);
         a_side[k] = StaysSide(sa[k], shift, margin);
+        far[k] = StaysSide(sa[k], shift, margin + feature_tol);
       }
-      if (a_side[0] && a_side[1] && a_side[2] && ((sa[0] > 0) == (sa[1] > 0)) &&
-          ((sa[1] > 0) == (sa[2] > 0))) {
-        return false;
-      }
+      events = !one_side(a_side, sa);
+      apart = one_side(far, sa);
+      if (apart) return;
     }
     if (na.squaredNorm() > 0) {
       const double shift = -t_best * na.dot(d_B);
       for (int k = 0; k < 3; ++k) {
         sb[k] = na.dot(tb.v[k] - ta.v[0]);
         b_side[k] = StaysSide(sb[k], shift, margin);
+        far[k] = StaysSide(sb[k], shift, margin + feature_tol);
       }
-      // B's whole triangle stays on one side of A's plane, where every
-      // feature of A lies: no event either.
-      if (b_side[0] && b_side[1] && b_side[2] && ((sb[0] > 0) == (sb[1] > 0)) &&
-          ((sb[1] > 0) == (sb[2] > 0))) {
-        return false;
-      }
+      events = events && !one_side(b_side, sb);
+      apart = one_side(far, sb);
     }
-    return true;
   }
 };
 
@@ -1201,11 +1206,12 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
             return true;
           }
         }
-        if (feature_tol > 0) visited.push_back({key, fa, fb});
         SweptPlaneSides sides;
-        if (!sides.Compute(ta, a_tris.Normal(fa), tb, mb.face_normals()[fb], d_B, t_best)) {
-          return true;  // A's triangle never reaches B's plane: no event at all
-        }
+        sides.Compute(ta, a_tris.Normal(fa), tb, mb.face_normals()[fb], d_B, t_best, feature_tol);
+        // Only pairs that may come within the feature tolerance by t_best
+        // (then also by the final toi <= t_best) are kept for the features.
+        if (feature_tol > 0 && !sides.apart) visited.push_back({key, fa, fb});
+        if (!sides.events) return true;  // neither triangle reaches the other's plane
         // Pairs whose boxes overlap at t = 0 (key 0) come first in the
         // best-first order and are all met: the start check lives here
         // (after the plane filter: a triangle strictly on one side of the
