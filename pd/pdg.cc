@@ -922,6 +922,17 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
       Accept(c, pdt.X_WA_result, &pdt_best);
     }
   };
+  // PDt as a start or a check: its answer replaces best where it is better
+  // (returns whether it did), and the period of the check against PDt
+  // starts again.
+  auto try_pdt = [&](bool basin_lost) {
+    data->queries_since_pdt_ = 0;
+    run_pdt(basin_lost);
+    if (!(pdt_best.valid && pdt_best.sigma < best.sigma)) return false;
+    best = pdt_best;
+    FeaturesFromPdt(pdt, &data->best_features);
+    return true;
+  };
   Pose X_coh;
   double cached_sigma = 0;
   if (CoherentStart(c, &X_coh, &cached_sigma)) AcceptSwept(c, X_coh, &best);
@@ -936,12 +947,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
       best.valid && std::sqrt(best.sigma) > 1.2 * std::sqrt(cached_sigma) + slack;
   if (lost_basin && !request.pdg_always_pdt_start) data->pdt.ResetCoherence();
   if (!best.valid || request.pdg_always_pdt_start || lost_basin) {
-    data->queries_since_pdt_ = 0;
-    run_pdt(lost_basin && !request.pdg_always_pdt_start);
-    if (pdt_best.valid && pdt_best.sigma < best.sigma) {
-      best = pdt_best;
-      FeaturesFromPdt(pdt, &data->best_features);
-    }
+    try_pdt(lost_basin && !request.pdg_always_pdt_start);
   }
   if (!best.valid) {
     result->failure = pdt.status == PdStatus::kFailed
@@ -963,14 +969,8 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
   // iteration goes on from it.
   if (!pdt_done && request.pdg_pdt_check_period > 0 &&
       ++data->queries_since_pdt_ >= request.pdg_pdt_check_period &&
-      Work(c) - work_at_start <= kPdtCheckWork) {
-    run_pdt(false);
-    data->queries_since_pdt_ = 0;
-    if (pdt_best.valid && pdt_best.sigma < best.sigma) {
-      best = pdt_best;
-      FeaturesFromPdt(pdt, &data->best_features);
-      status = IterateContactSpace(c, &best, &result->iterations, &budget);
-    }
+      Work(c) - work_at_start <= kPdtCheckWork && try_pdt(false)) {
+    status = IterateContactSpace(c, &best, &result->iterations, &budget);
   }
 
   // Verified answer: a contact along its own motion; else the PDt answer.
