@@ -27,6 +27,7 @@
 #include "tests/pd/pd_query_runs.h"
 #include "tests/pd/pd_test_support.h"
 #include "tests/pd/random_poses.h"
+#include "tests/pd/table_one_benchmark.h"
 #include "tests/test_util.h"
 
 namespace hapticpd::pd {
@@ -820,16 +821,6 @@ TEST(PdgCoherence, CoherentStartsAreVerifiedAndCloseToPdtOrBetter) {
   EXPECT_LT(st.worst_ratio, 1.5);
 }
 
-// bench_pdg's hammer-vs-beast benchmark (the shared models in `beast`'s
-// folder) with its 2,000-frame trajectory (bench::MakeTrajectory's
-// `max_slope`).
-bench::Benchmark HammerBenchmark(const std::filesystem::path& beast, double max_slope) {
-  std::vector<bench::Benchmark> benchmarks = bench::BuildBenchmarks(beast.parent_path().string());
-  bench::Benchmark b = std::move(benchmarks.at(2));
-  bench::MakeTrajectory(&b, 2000, max_slope);
-  return b;
-}
-
 // Frames 0..last of `b`'s trajectory through PDg and PDt side by side (each
 // with its own coherence, as bench_pdg runs them): on_frame(i, pdg, pdt).
 template <typename OnFrame>
@@ -858,7 +849,8 @@ void ReplayWithPdt(const bench::Benchmark& b, std::size_t last, const Penetratio
 // must not exceed PDt.
 TEST(PdgCoherence, AStartThatLostItsBasinIsComparedWithPdt) {
   HAPTICPD_REQUIRE_MODEL(path, "beast.obj");
-  const bench::Benchmark b = HammerBenchmark(path, std::numeric_limits<double>::infinity());
+  const bench::Benchmark b =
+      TableOneBenchmark(path, "hammer-beast20k", std::numeric_limits<double>::infinity());
   ASSERT_EQ(b.name, "hammer-beast20k");
   const FclModel fa(b.probe->mesh()), fb(b.scene->mesh());
   const PenetrationRequest request;
@@ -884,7 +876,7 @@ TEST(PdgCoherence, AStartThatLostItsBasinIsComparedWithPdt) {
 // (the check is what bounds it).
 TEST(PdgCoherence, ThePeriodicPdtCheckBoundsTheDriftAbovePdt) {
   HAPTICPD_REQUIRE_MODEL(path, "beast.obj");
-  const bench::Benchmark b = HammerBenchmark(path, bench::kTrajectoryMaxSlope);
+  const bench::Benchmark b = TableOneBenchmark(path, "hammer-beast20k");
   ASSERT_EQ(b.name, "hammer-beast20k");
   auto worst_ratio = [&](const PenetrationRequest& request) {
     double worst = 0;

@@ -13,7 +13,6 @@
 #include <random>
 
 #include "client/bench/ground_truth.h"
-#include "client/bench/scenarios.h"
 #include "pd/scene_pd.h"
 #include "pd/shapes.h"
 #include "tests/alloc_counter.h"
@@ -22,6 +21,7 @@
 #include "tests/pd/pd_query_runs.h"
 #include "tests/pd/pd_test_support.h"
 #include "tests/pd/random_poses.h"
+#include "tests/pd/table_one_benchmark.h"
 #include "tests/test_util.h"
 
 namespace hapticpd::pd {
@@ -217,9 +217,7 @@ TEST(PdtNonConvex, SharedBunnyAnswersAreVerifiedContacts) {
 TEST(PdtCoherence, AStartAfterACollidingInProjectionStaysNextToTheAnswer) {
   if (testing::kSanitized) GTEST_SKIP() << "release preset only (loads the shared bunny)";
   HAPTICPD_REQUIRE_MODEL(path, "stanford-bunny.obj");
-  bench::Benchmark b =
-      std::move(bench::BuildBenchmarks(path.parent_path().string(), false, "stick-bunny").at(0));
-  bench::MakeTrajectory(&b, 2000);
+  const bench::Benchmark b = TableOneBenchmark(path, "stick-bunny");
   const FclModel fa(b.probe->mesh()), fb(b.scene->mesh());
   PdQueryData data;
   const PenetrationRequest request;
