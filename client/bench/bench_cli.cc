@@ -74,13 +74,9 @@ void AddCommonBenchOptions(CLI::App* cmd, const std::shared_ptr<BenchOptions>& o
                   "Steepest surface the tip follows while sliding (rise over run; inf: the raw "
                   "height under it, which jumps at edges: a teleport of the probe)")
       ->check(CLI::Validator(
-          [](std::string& s) -> std::string {
-            char* end = nullptr;
-            const double v = std::strtod(s.c_str(), &end);
-            if (end == s.c_str() || *end != '\0' || !(v >= 0)) {
-              return "must be a number >= 0 (inf: no limit), got '" + s + "'";
-            }
-            return {};
+          [](std::string& s) {
+            double slope = 0;
+            return bench::ParseMaxSlope(s, &slope);
           },
           "SLOPE >= 0"))
       ->capture_default_str();

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <iomanip>
 #include <limits>
@@ -135,6 +136,16 @@ Vec3 SmoothNormal(const pd::Mesh& m, const Vec3& p, double radius, int face) {
 /// press in along the normal to 2 % of the probe's size, slide along a figure
 /// eight while pressed (the tip follows the surface height under it), and come
 /// back out; the probe tilts slowly by up to 10 degrees about its tip.
+std::string ParseMaxSlope(const std::string& text, double* slope) {
+  char* end = nullptr;
+  const double v = std::strtod(text.c_str(), &end);
+  if (end == text.c_str() || *end != '\0' || !(v >= 0)) {
+    return "must be a number >= 0 (inf: no limit), got '" + text + "'";
+  }
+  *slope = v;
+  return {};
+}
+
 void MakeTrajectory(Benchmark* b, int num_frames, double max_slope) {
   if (!(max_slope >= 0)) {
     throw std::invalid_argument("trajectory max slope must be >= 0 (infinity: no limit), got " +

@@ -83,6 +83,10 @@ struct Benchmark {
 /// degrees.
 inline constexpr double kTrajectoryMaxSlope = 1.0;
 
+/// Reads a --max-slope value: a number >= 0, "inf" for no limit. Returns
+/// the problem ("" when `text` is good, *slope then set).
+std::string ParseMaxSlope(const std::string& text, double* slope);
+
 /// Start just above a surface point seen from above (the most upward-facing
 /// hit of a grid of downward rays over the middle of the scene whose start
 /// pose is collision-free, spinning the probe about the normal if needed),

@@ -54,11 +54,8 @@ inline bool ParseBenchArgs(int argc, char** argv, const char* program, BenchArgs
     } else if (const char* v = value("--frames")) {
       args->num_frames = std::max(8, std::atoi(v));
     } else if (const char* v = value("--max-slope")) {
-      char* end = nullptr;
-      args->max_slope = std::strtod(v, &end);
-      if (end == v || *end != '\0' || !(args->max_slope >= 0)) {
-        std::cerr << program << ": --max-slope: must be a number >= 0 (inf: no limit), got '" << v
-                  << "'\n";
+      if (const std::string problem = ParseMaxSlope(v, &args->max_slope); !problem.empty()) {
+        std::cerr << program << ": --max-slope: " << problem << "\n";
         return false;
       }
     } else {

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -122,6 +123,21 @@ TEST(BenchScenarios, SharedModelTrajectoriesHaveNoJumpsUnlessAskedFor) {
   MakeTrajectory(&hammer, 2000, std::numeric_limits<double>::infinity());
   EXPECT_GT(largest_step(hammer), 0.05);
   EXPECT_THROW(MakeTrajectory(&hammer, 2000, -1), std::invalid_argument);
+}
+
+TEST(BenchScenarios, MaxSlopeIsANumberAtLeastZeroOrInf) {
+  double slope = -7;
+  EXPECT_EQ(ParseMaxSlope("0.5", &slope), "");
+  EXPECT_EQ(slope, 0.5);
+  EXPECT_EQ(ParseMaxSlope("inf", &slope), "");
+  EXPECT_TRUE(std::isinf(slope));
+  for (const char* bad : {"", "x", "1x", "-1", "nan"}) {
+    slope = 3;
+    EXPECT_EQ(ParseMaxSlope(bad, &slope),
+              std::string("must be a number >= 0 (inf: no limit), got '") + bad + "'")
+        << bad;
+    EXPECT_EQ(slope, 3) << bad;
+  }
 }
 
 TEST(BenchScenarios, PercentileIsNearestRank) {
@@ -471,7 +487,9 @@ TEST(BenchCli, AccuracyWritesTheSvgsAndPeersPrintsJson) {
 TEST(BenchCli, BadArgumentsGetOneLineAndANonZeroExit) {
   for (const char* args :
        {"bench", "bench table1 --frames 0", "bench table1 --frames abc", "bench accuracy --poses 0",
-        "bench peers --bogus", "bench accuracy --tiny --frames 8 --svg /proc/hapticpd-no/such"}) {
+        "bench peers --bogus", "bench accuracy --tiny --frames 8 --svg /proc/hapticpd-no/such",
+        "bench table1 --tiny --frames 8 --max-slope x",
+        "bench table1 --tiny --frames 8 --max-slope -1"}) {
     const auto r = RunCli(args);
     EXPECT_NE(r.exit_code, 0) << args;
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << args << ": " << r.err;
@@ -496,7 +514,8 @@ TEST(BenchOracleCli, BadArgumentsGetOneLineAndANonZeroExit) {
   for (const char* args :
        {"", "table1", "accuracy --poses 0", "peers --bogus", "peers --frames 0",
         "accuracy --tiny --frames 8 --svg /proc/hapticpd-no/such", "cold --poses 0",
-        "cold --models /nonexistent-hapticpd-models", "cold --out /proc/hapticpd-no/such"}) {
+        "cold --models /nonexistent-hapticpd-models", "cold --out /proc/hapticpd-no/such",
+        "peers --tiny --frames 8 --max-slope 1x", "accuracy --tiny --frames 8 --max-slope nan"}) {
     const auto r = RunBenchCli(args);
     EXPECT_NE(r.exit_code, 0) << args;
     EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << args << ": " << r.err;
