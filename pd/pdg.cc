@@ -325,14 +325,12 @@ enum class Sweep : std::uint8_t { kStartColliding, kHit, kMiss };
 // traversal (kStartColliding), which costs much less than a separate Collide
 // before it.
 Sweep SweepTranslationFrom(PdgContext& c, const Pose& X_from, const Pose& X_to, Pose* X_contact,
-                           Pose* X_end, bool check_start = true,
-                           bool start_likely_overlaps = false) {
+                           Pose* X_end, bool check_start = true) {
   const Vec3& p_AC = c.A.mass().p_MC;
   const Vec3 d = X_to * p_AC - X_from * p_AC;
   CcdRequest req;
   req.feature_tolerance = c.eps;
   req.check_start = check_start;
-  req.start_crossing_first = start_likely_overlaps;
   req.near_pairs = true;
   if (TranslationalCcd(c.A, X_from, d, c.B, kX_BB, req, &c.data.ccd, &c.data.scratch)) {
     *X_contact = c.data.ccd.X_WA_contact;
@@ -416,11 +414,9 @@ bool OutProject(PdgContext& c, const Pose& X_free, Pose* X_contact) {
 
 // OutProject from a pose not known to be free: kStartColliding when it
 // collides (nothing else done), else whether a contact was reached.
-Sweep OutProjectFrom(PdgContext& c, const Pose& X, Pose* X_contact,
-                     bool start_likely_overlaps = false) {
+Sweep OutProjectFrom(PdgContext& c, const Pose& X, Pose* X_contact) {
   Pose X_end;
-  const Sweep s =
-      SweepTranslationFrom(c, X, c.X_BA, X_contact, &X_end, true, start_likely_overlaps);
+  const Sweep s = SweepTranslationFrom(c, X, c.X_BA, X_contact, &X_end);
   if (s != Sweep::kMiss) return s;
   return SweepRotation(c, X_end, X_contact) ? Sweep::kHit : Sweep::kMiss;
 }
@@ -838,7 +834,7 @@ PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budg
         z.tail<3>() = t.normalized() * std::sqrt(std::max(0.0, sigma0 - weight * v * v));
       }
       Pose X_contact;
-      if (OutProjectFrom(c, At(c, z), &X_contact, true) != Sweep::kHit) continue;
+      if (OutProjectFrom(c, At(c, z), &X_contact) != Sweep::kHit) continue;
       if (Sigma(c, Z(c, X_contact)) >= best->sigma) continue;
       AcceptSwept(c, X_contact, best);
       status = IterateContactSpace(c, best, iterations, budget);
