@@ -201,6 +201,16 @@ inline TriB TriangleOfB(const Mesh& B, Index f) {
   return {{V[t[0]], V[t[1]], V[t[2]]}};
 }
 
+// Whether A's triangle fa (from a triangle cache) and B's triangle tb have
+// disjoint boxes, by more than `slack`: then they cannot intersect.
+template <typename ACache>
+inline bool TriangleBoxesApart(ACache* a_tris, Index fa, const TriB& tb, double slack) {
+  const Vec3 b_lo = tb.v[0].cwiseMin(tb.v[1]).cwiseMin(tb.v[2]);
+  const Vec3 b_hi = tb.v[0].cwiseMax(tb.v[1]).cwiseMax(tb.v[2]);
+  return ((a_tris->Lo(fa).array() - slack) > b_hi.array()).any() ||
+         (b_lo.array() > (a_tris->Hi(fa).array() + slack)).any();
+}
+
 // The scratch's crossing witnesses (QueryScratch::witnesses): tested first
 // by first-crossing queries, remembered when a traversal finds a crossing.
 // (Kept out of line: inlined, it tipped GCC into calling the CCD's leaf
@@ -209,10 +219,16 @@ template <typename ACache>
 [[gnu::noinline]] bool WitnessCrosses(const QueryScratch& s, const GeometryModel& A,
                                       const GeometryModel& B, ACache* a_tris) {
   if (s.witness_model_a != A.uid() || s.witness_model_b != B.uid()) return false;
+  // Round-off slack of the box cull (the exact test decides touching).
+  const Mesh& mb = B.mesh();
+  const double slack =
+      1e-12 * (1.0 + mb.bounds().hi.cwiseAbs().maxCoeff() + mb.bounds().lo.cwiseAbs().maxCoeff());
   for (int k = 0; k < s.witness_count; ++k) {
     const auto [fa, fb] = s.witnesses[k];
     const TriB& ta = a_tris->Tri(fa);
-    const TriB tb = TriangleOfB(B.mesh(), fb);
+    const TriB tb = TriangleOfB(mb, fb);
+    // Most stale witnesses are far apart: their boxes say so cheaply.
+    if (TriangleBoxesApart(a_tris, fa, tb, slack)) continue;
     if (internal::TrianglesIntersect(ta.v[0], ta.v[1], ta.v[2], tb.v[0], tb.v[1], tb.v[2])) {
       return true;
     }
@@ -288,16 +304,6 @@ inline double PlaneBound(const Vec3& n, const TriB& t, const TriB& other) {
 inline bool StaysSide(double s0, double shift, double margin) {
   const double s1 = s0 + shift;
   return (s0 > margin && s1 > margin) || (s0 < -margin && s1 < -margin);
-}
-
-// Whether A's triangle fa (from a triangle cache) and B's triangle tb have
-// disjoint boxes, by more than `slack`: then they cannot intersect.
-template <typename ACache>
-inline bool TriangleBoxesApart(ACache* a_tris, Index fa, const TriB& tb, double slack) {
-  const Vec3 b_lo = tb.v[0].cwiseMin(tb.v[1]).cwiseMin(tb.v[2]);
-  const Vec3 b_hi = tb.v[0].cwiseMax(tb.v[1]).cwiseMax(tb.v[2]);
-  return ((a_tris->Lo(fa).array() - slack) > b_hi.array()).any() ||
-         (b_lo.array() > (a_tris->Hi(fa).array() + slack)).any();
 }
 
 // Depth-first pair traversal. `overlap(na, nb)` prunes node pairs;
