@@ -201,6 +201,14 @@ inline TriB TriangleOfB(const Mesh& B, Index f) {
   return {{V[t[0]], V[t[1]], V[t[2]]}};
 }
 
+// Round-off slack of box culls against B's triangles: relative to B's
+// coordinates (and `extra`, e.g. a sweep's length), far below any real gap;
+// the exact tests decide touching.
+inline double BoxSlack(const Mesh& mb, double extra = 0) {
+  return 1e-12 * (1.0 + mb.bounds().hi.cwiseAbs().maxCoeff() +
+                  mb.bounds().lo.cwiseAbs().maxCoeff() + extra);
+}
+
 // Whether A's triangle fa (from a triangle cache) and B's triangle tb have
 // disjoint boxes, by more than `slack`: then they cannot intersect.
 template <typename ACache>
@@ -219,10 +227,8 @@ template <typename ACache>
 [[gnu::noinline]] bool WitnessCrosses(const QueryScratch& s, const GeometryModel& A,
                                       const GeometryModel& B, ACache* a_tris) {
   if (s.witness_model_a != A.uid() || s.witness_model_b != B.uid()) return false;
-  // Round-off slack of the box cull (the exact test decides touching).
   const Mesh& mb = B.mesh();
-  const double slack =
-      1e-12 * (1.0 + mb.bounds().hi.cwiseAbs().maxCoeff() + mb.bounds().lo.cwiseAbs().maxCoeff());
+  const double slack = BoxSlack(mb);
   for (int k = 0; k < s.witness_count; ++k) {
     const auto [fa, fb] = s.witnesses[k];
     const TriB& ta = a_tris->Tri(fa);
@@ -306,6 +312,23 @@ inline bool StaysSide(double s0, double shift, double margin) {
   return (s0 > margin && s1 > margin) || (s0 < -margin && s1 < -margin);
 }
 
+// The triangle pairs of the leaf pair (na, nb), counted as tested: false as
+// soon as `leaf(fa, fb)` returns false.
+template <typename LeafFn>
+[[gnu::always_inline]] inline bool ForLeafPair(const Bvh& ba, const Bvh& bb, const BvhNode& na,
+                                               const BvhNode& nb, QueryScratch* scratch,
+                                               LeafFn&& leaf) {
+  scratch->triangle_tests += static_cast<std::uint64_t>(na.count) * nb.count;
+  const Index* pa = ba.primitives().data() + na.first;
+  const Index* pb = bb.primitives().data() + nb.first;
+  for (Index i = 0; i < na.count; ++i) {
+    for (Index j = 0; j < nb.count; ++j) {
+      if (!leaf(pa[i], pb[j])) return false;
+    }
+  }
+  return true;
+}
+
 // Depth-first pair traversal. `overlap(na, nb)` prunes node pairs;
 // `leaf(fa, fb)` handles a triangle pair and returns false to stop.
 template <typename OverlapFn, typename LeafFn>
@@ -316,8 +339,6 @@ void TraversePairs(const Bvh& ba, const Bvh& bb, QueryScratch* scratch, OverlapF
   stack.emplace_back(0, 0);
   const auto& NA = ba.nodes();
   const auto& NB = bb.nodes();
-  const auto& PA = ba.primitives();
-  const auto& PB = bb.primitives();
   while (!stack.empty()) {
     const auto [ia, ib] = stack.back();
     stack.pop_back();
@@ -326,14 +347,9 @@ void TraversePairs(const Bvh& ba, const Bvh& bb, QueryScratch* scratch, OverlapF
     ++scratch->node_tests;
     if (!overlap(na, nb)) continue;
     if (na.leaf() && nb.leaf()) {
-      scratch->triangle_tests += static_cast<std::uint64_t>(na.count) * nb.count;
-      for (Index i = 0; i < na.count; ++i) {
-        for (Index j = 0; j < nb.count; ++j) {
-          if (!leaf(PA[na.first + i], PB[nb.first + j])) {
-            stack.clear();
-            return;
-          }
-        }
+      if (!ForLeafPair(ba, bb, na, nb, scratch, leaf)) {
+        stack.clear();
+        return;
       }
       continue;
     }
@@ -676,8 +692,7 @@ bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
     result->colliding = true;
     return true;
   }
-  const double box_slack =
-      1e-12 * (1.0 + mb.bounds().hi.cwiseAbs().maxCoeff() + mb.bounds().lo.cwiseAbs().maxCoeff());
+  const double box_slack = BoxSlack(mb);
   TraversePairs(
       A.bvh(), B.bvh(), scratch,
       [&](const BvhNode& na, const BvhNode& nb) {
@@ -1078,15 +1093,11 @@ bool StartCrossingFirst(const GeometryModel& A, const GeometryModel& B, const Ma
                         int max_leaf_pairs) {
   if (A.bvh().nodes().empty() || B.bvh().nodes().empty()) return false;
   const Mesh& mb = B.mesh();
-  const double slack =
-      1e-12 * (1.0 + t.cwiseAbs().maxCoeff() + mb.bounds().hi.cwiseAbs().maxCoeff() +
-               mb.bounds().lo.cwiseAbs().maxCoeff());
+  const double slack = BoxSlack(mb, t.cwiseAbs().maxCoeff());
   const Vec3 rtt = R.transpose() * t;  // A's origin offset on A's axes
   int leaves = 0;
   const auto& NA = A.bvh().nodes();
   const auto& NB = B.bvh().nodes();
-  const auto& PA = A.bvh().primitives();
-  const auto& PB = B.bvh().primitives();
   // B's face axes: the largest gap (> slack: apart; more negative: deeper).
   auto gap_b = [&](const BvhNode& na, const BvhNode& nb) {
     const internal::RotatedBox& ra = a_tris->NodeA(na);
@@ -1121,15 +1132,13 @@ bool StartCrossingFirst(const GeometryModel& A, const GeometryModel& B, const Ma
     if (apart_a(na, nb)) continue;
     if (na.leaf() && nb.leaf()) {
       if (++leaves > max_leaf_pairs) break;
-      scratch->triangle_tests += static_cast<std::uint64_t>(na.count) * nb.count;
-      for (Index i = 0; i < na.count; ++i) {
-        for (Index j = 0; j < nb.count; ++j) {
-          if (crosses(PA[na.first + i], PB[nb.first + j])) {
-            RememberWitness(A, B, PA[na.first + i], PB[nb.first + j], scratch);
-            stack.clear();
-            return true;
-          }
-        }
+      if (!ForLeafPair(A.bvh(), B.bvh(), na, nb, scratch, [&](Index fa, Index fb) {
+            if (!crosses(fa, fb)) return true;
+            RememberWitness(A, B, fa, fb, scratch);
+            return false;
+          })) {
+        stack.clear();
+        return true;
       }
       continue;
     }
@@ -1185,8 +1194,7 @@ bool TranslationalCcd(const GeometryModel& A, const Pose& X_WA0, const Vec3& d_W
   RotationCache a_tris(A, B, X_BA, swept, scratch);
   // Round-off slack for the per-triangle box cull (relative to the scene's
   // coordinates and the sweep).
-  const double box_slack = 1e-12 * (1.0 + mb.bounds().hi.cwiseAbs().maxCoeff() +
-                                    mb.bounds().lo.cwiseAbs().maxCoeff() + d_B.norm());
+  const double box_slack = BoxSlack(mb, d_B.norm());
   // Earliest time a node pair can touch (swept separating-axis interval),
   // infinity when it cannot within [0, t_best]: the best-first traversal
   // finds the first contact early and prunes everything behind it.
