@@ -77,6 +77,7 @@ void ServoLoop::ResetContact() {
   quiet_count_ = 0;
   startup_gain_ = 0;
   link_lost_ = false;
+  stale_last_tick_ = false;
 }
 
 void ServoLoop::Tick(std::int64_t now_ns) {
@@ -236,7 +237,17 @@ void ServoLoop::UpdateLinkFade(double dt, double h, const Vec3& v_WH, const Vec3
   // only fades faster); once it is zero, hold the proxy on the handle so the
   // coupling stretches nothing and nothing stale is felt when IRs return.
   // The ramp back counts ticks (a late tick never makes it a step).
-  const bool link_down = r->ir.have_ir && r->ir.stale;
+  // A late tick is no evidence of a lost link: the IR's age then includes
+  // the loop's own stall, and on one machine that is most often a stall of
+  // the whole process, the session's and the local model's threads with
+  // it. Fading there (in one step, as the stall is longer than the fade)
+  // would put the proxy on a handle that sank meanwhile, inside the body,
+  // and the answers a tick later would push it and the hand out with energy
+  // nobody put in. The fade starts if the next tick still finds it stale.
+  const bool stale = r->ir.have_ir && r->ir.stale;
+  const bool late = dt > kCatchUpPeriods * h;
+  const bool link_down = stale && (!late || stale_last_tick_ || link_lost_);
+  stale_last_tick_ = stale;
   if (link_down) {
     link_gain_ = config_.link_fade_time_s > 0
                      ? std::max(0.0, link_gain_ - dt / config_.link_fade_time_s)

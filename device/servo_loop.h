@@ -89,7 +89,11 @@ struct ServoConfig {
   /// handle, so no coupling stretch survives the loss; when fresh IRs come
   /// again it ramps back over link_fade_in_time_s. Both are measured on the
   /// loop's clock. This is the only fade on link loss: the IR's own fade
-  /// (IrEvalParams::fade_time_s) is for leaving its validity region.
+  /// (IrEvalParams::fade_time_s) is for leaving its validity region. A
+  /// late tick (more than the catch-up span after the last) does not start
+  /// the fade: the IR's age then holds the loop's own stall, most often the
+  /// whole process's, whose next answer is a tick away; the fade starts if
+  /// the next tick still finds the IR stale (RequestLinkLost fades at once).
   double link_fade_time_s = 0.020;
   double link_fade_in_time_s = 0.100;
   /// m: within this distance of a contact row's surface (and inside it) the
@@ -249,6 +253,7 @@ class ServoLoop {
   int quiet_count_ = 0;
   double startup_gain_ = 0;
   double link_gain_ = 1;
+  bool stale_last_tick_ = false;  // the IR was stale at the last tick
   bool engaged_ = false;
   std::jthread thread_;
   std::atomic<bool> got_rt_{false};

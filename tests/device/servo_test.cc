@@ -1,7 +1,8 @@
 // The servo loop closed through the simulated hand and an in-process PDt
 // source, in simulated time: press, slide, plate, closed-loop energy, a
-// stalled IR stream, an ended stream, the start-up ramp, no allocation in the tick, and the
-// recorder / replay round trip.
+// stalled IR stream, a stall of the whole process, an ended stream, the
+// start-up ramp, no allocation in the tick, and the recorder / replay round
+// trip (device_tests: every preset).
 #include "device/servo_loop.h"
 
 #include <gtest/gtest.h>
@@ -171,6 +172,43 @@ TEST(Servo, StalledIrStreamFadesAndRecovers) {
   EXPECT_LE(after, rig.device->info().max_force + 1e-9);
   EXPECT_LT(max_df, 1.0);
   EXPECT_GT(rig.loop->stats().stale_ticks, 100u);
+}
+
+TEST(Servo, AStallOfTheWholeProcessIsNotALinkLoss) {
+  // The machine stalls the process for 30 ms with the probe pressed: the
+  // servo's tick and the PD source's answers stop together, so the late
+  // tick finds the IR 30 ms old, past its 20 ms staleness. That says
+  // nothing about the link: the next answer is one tick away. The output
+  // must not fade to zero and the proxy must not be put on the handle (it
+  // would land inside the box, and the returning answers would push it
+  // and the hand out with energy nobody put in). A real link loss still
+  // fades: StalledIrStreamFadesAndRecovers.
+  ScriptParams sp = Script(HandScript::kPress, 4);
+  Rig rig(sp, CubeProbe(), BoxScene());
+  constexpr std::int64_t kStallTick = 1900;
+  rig.tick_time_ns = [](std::int64_t n, std::int64_t previous_ns) {
+    return previous_ns + (n == kStallTick ? 30'000'000 : 1'000'000);
+  };
+  double before = 0, min_gain = 1, min_stretch = 1, min_force = 1e9;
+  int stale_late_ticks = 0;
+  rig.Run(2.2, [&](const TickRecord& r) {
+    const std::int64_t n = rig.tick;
+    const double fz = r.F_cmd_W.force.z();
+    if (n == kStallTick - 1) before = fz;
+    if (n == kStallTick && r.ir.stale) ++stale_late_ticks;
+    if (n >= kStallTick && n < kStallTick + 20) {
+      min_gain = std::min(min_gain, r.link_gain);
+      min_stretch = std::min(min_stretch, (r.X_WH.t - r.proxy.X_WP.t).norm());
+      min_force = std::min(min_force, fz);
+    }
+  });
+  EXPECT_GT(before, 2.0);
+  EXPECT_EQ(stale_late_ticks, 1)
+      << "the late tick must find the IR stale for this test to mean anything";
+  EXPECT_EQ(min_gain, 1.0);
+  EXPECT_GT(min_stretch, 1e-3);
+  EXPECT_GT(min_force, 0.75 * before);
+  EXPECT_GE(rig.loop->stats().passivity_min_j, -1e-4);
 }
 
 TEST(Servo, EndedStreamFadesAtOnceAndDropsLateIrs) {
