@@ -252,7 +252,7 @@ void ServoLoop::UpdateLinkFade(double dt, double h, const Vec3& v_WH, const Vec3
     link_gain_ = config_.link_fade_time_s > 0
                      ? std::max(0.0, link_gain_ - dt / config_.link_fade_time_s)
                      : 0.0;
-  } else if (link_gain_ < 1) {
+  } else if (!stale && link_gain_ < 1) {  // a stale IR on a late tick holds the gain
     link_gain_ = config_.link_fade_in_time_s > 0
                      ? std::min(1.0, link_gain_ + h / config_.link_fade_in_time_s)
                      : 1.0;

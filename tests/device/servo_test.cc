@@ -1,6 +1,6 @@
 // The servo loop closed through the simulated hand and an in-process PDt
 // source, in simulated time: press, slide, plate, closed-loop energy, a
-// stalled IR stream, a stall of the whole process, an ended stream, the
+// stalled IR stream, stalls of the whole process, an ended stream, the
 // start-up ramp, no allocation in the tick, and the recorder / replay round
 // trip (device_tests: every preset).
 #include "device/servo_loop.h"
@@ -209,6 +209,40 @@ TEST(Servo, AStallOfTheWholeProcessIsNotALinkLoss) {
   EXPECT_GT(min_stretch, 1e-3);
   EXPECT_GT(min_force, 0.75 * before);
   EXPECT_GE(rig.loop->stats().passivity_min_j, -1e-4);
+}
+
+TEST(Servo, AStallDuringTheRampAfterALossHoldsTheGain) {
+  // A real loss (the PD source stalled for 200 ms) fades the output; once
+  // answers return it ramps back over 100 ms. A stall of the whole process
+  // in the middle of that ramp neither fades nor ramps on its late tick:
+  // the gain holds, and the ramp goes on from the next tick.
+  ScriptParams sp = Script(HandScript::kPress, 4);
+  Rig rig(sp, CubeProbe(), BoxScene());
+  constexpr std::int64_t kStallTick = 2100;
+  rig.tick_time_ns = [](std::int64_t n, std::int64_t previous_ns) {
+    return previous_ns + (n == kStallTick ? 30'000'000 : 1'000'000);
+  };
+  auto lost = [](double t) { return t > 1.85 && t <= 2.05; };
+  double gain_before = -1, gain_late = -1, gain_after = -1, min_gain = 1;
+  bool stale_late = false;
+  rig.Run(
+      2.2,
+      [&](const TickRecord& r) {
+        min_gain = std::min(min_gain, r.link_gain);
+        if (rig.tick == kStallTick - 1) gain_before = r.link_gain;
+        if (rig.tick == kStallTick) {
+          gain_late = r.link_gain;
+          stale_late = r.ir.stale;
+        }
+        if (rig.tick == kStallTick + 1) gain_after = r.link_gain;
+      },
+      lost);
+  EXPECT_EQ(min_gain, 0.0) << "the loss must fade the output to zero";
+  EXPECT_GT(gain_before, 0.0);
+  EXPECT_LT(gain_before, 1.0) << "the stall must fall inside the ramp";
+  EXPECT_TRUE(stale_late);
+  EXPECT_EQ(gain_late, gain_before);
+  EXPECT_GT(gain_after, gain_late);
 }
 
 TEST(Servo, EndedStreamFadesAtOnceAndDropsLateIrs) {
