@@ -90,10 +90,11 @@ struct ServoConfig {
   /// again it ramps back over link_fade_in_time_s. Both are measured on the
   /// loop's clock. This is the only fade on link loss: the IR's own fade
   /// (IrEvalParams::fade_time_s) is for leaving its validity region. A
-  /// late tick (more than the catch-up span after the last) does not start
-  /// the fade: the IR's age then holds the loop's own stall, most often the
-  /// whole process's, whose next answer is a tick away; the fade starts if
-  /// the next tick still finds the IR stale (RequestLinkLost fades at once).
+  /// late tick (more than the catch-up span after the last) that finds the
+  /// IR stale holds the gain, neither fading nor ramping back: the IR's age
+  /// then holds the loop's own stall, most often the whole process's, whose
+  /// next answer is a tick away; the fade starts if the next tick still
+  /// finds the IR stale (RequestLinkLost fades at once).
   double link_fade_time_s = 0.020;
   double link_fade_in_time_s = 0.100;
   /// m: within this distance of a contact row's surface (and inside it) the
