@@ -234,7 +234,7 @@ void ServoLoop::StepProxyAgainstContact(std::int64_t now_ns, double h, double dt
 void ServoLoop::UpdateLinkFade(double dt, double h, const Vec3& v_WH, const Vec3& w_WH,
                                TickRecord* r) {
   // Link loss (stale IR): fade the output to zero in real time (a late tick
-  // only fades faster); once it is zero, hold the proxy on the handle so the
+  // within a loss fades faster); once it is zero, hold the proxy on the handle so the
   // coupling stretches nothing and nothing stale is felt when IRs return.
   // The ramp back counts ticks (a late tick never makes it a step).
   // A late tick is no evidence of a lost link: the IR's age then includes
