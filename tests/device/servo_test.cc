@@ -33,6 +33,15 @@ ScriptParams Script(HandScript s, double duration = 3) {
   return p;
 }
 
+// The whole process stalls before tick `tick`: it comes `stall_ns` after the
+// one before (the PD source, pumped after each tick, stalls with it); every
+// other tick is one period on.
+void StallProcessAt(Rig* rig, std::int64_t tick, std::int64_t stall_ns) {
+  rig->tick_time_ns = [tick, stall_ns](std::int64_t n, std::int64_t previous_ns) {
+    return previous_ns + (n == tick ? stall_ns : 1'000'000);
+  };
+}
+
 TEST(Servo, PressPushesOutAndGrowsWithDepth) {
   Rig rig(Script(HandScript::kPress), CubeProbe(), BoxScene());
   double max_fz = 0, min_fz = 0;
@@ -186,9 +195,7 @@ TEST(Servo, AStallOfTheWholeProcessIsNotALinkLoss) {
   ScriptParams sp = Script(HandScript::kPress, 4);
   Rig rig(sp, CubeProbe(), BoxScene());
   constexpr std::int64_t kStallTick = 1900;
-  rig.tick_time_ns = [](std::int64_t n, std::int64_t previous_ns) {
-    return previous_ns + (n == kStallTick ? 30'000'000 : 1'000'000);
-  };
+  StallProcessAt(&rig, kStallTick, 30'000'000);
   double before = 0, min_gain = 1, min_stretch = 1, min_force = 1e9;
   int stale_late_ticks = 0;
   rig.Run(2.2, [&](const TickRecord& r) {
@@ -219,9 +226,7 @@ TEST(Servo, AStallDuringTheRampAfterALossHoldsTheGain) {
   ScriptParams sp = Script(HandScript::kPress, 4);
   Rig rig(sp, CubeProbe(), BoxScene());
   constexpr std::int64_t kStallTick = 2100;
-  rig.tick_time_ns = [](std::int64_t n, std::int64_t previous_ns) {
-    return previous_ns + (n == kStallTick ? 30'000'000 : 1'000'000);
-  };
+  StallProcessAt(&rig, kStallTick, 30'000'000);
   auto lost = [](double t) { return t > 1.85 && t <= 2.05; };
   double gain_before = -1, gain_late = -1, gain_after = -1, min_gain = 1;
   bool stale_late = false;
