@@ -130,12 +130,6 @@ Vec3 SmoothNormal(const pd::Mesh& m, const Vec3& p, double radius, int face) {
   return n.normalized();
 }
 
-/// Start just above a surface point seen from above (the most upward-facing
-/// hit of a grid of downward rays over the middle of the scene whose start
-/// pose is collision-free, spinning the probe about the normal if needed),
-/// press in along the normal to 2 % of the probe's size, slide along a figure
-/// eight while pressed (the tip follows the surface height under it), and come
-/// back out; the probe tilts slowly by up to 10 degrees about its tip.
 std::string ParseMaxSlope(const std::string& text, double* slope) {
   char* end = nullptr;
   const double v = std::strtod(text.c_str(), &end);
@@ -146,6 +140,12 @@ std::string ParseMaxSlope(const std::string& text, double* slope) {
   return {};
 }
 
+/// Start just above a surface point seen from above (the most upward-facing
+/// hit of a grid of downward rays over the middle of the scene whose start
+/// pose is collision-free, spinning the probe about the normal if needed),
+/// press in along the normal to 2 % of the probe's size, slide along a figure
+/// eight while pressed (the tip follows the surface height under it), and come
+/// back out; the probe tilts slowly by up to 10 degrees about its tip.
 void MakeTrajectory(Benchmark* b, int num_frames, double max_slope) {
   if (!(max_slope >= 0)) {
     throw std::invalid_argument("trajectory max slope must be >= 0 (infinity: no limit), got " +
