@@ -10,6 +10,7 @@
 
 #include "pd/bvh.h"
 #include "pd/convex.h"
+#include "pd/interior_grid.h"
 #include "pd/mass_properties.h"
 #include "pd/mesh.h"
 
@@ -27,6 +28,8 @@ class GeometryModel {
       radius_about_com_ = std::max(radius_about_com_, (v - mass_.p_MC).norm());
     }
     if (convex_) gauss_arcs_.emplace(mesh_);
+    if (closed()) BuildInterior();
+    PickSamplePoints();
   }
 
   const Mesh& mesh() const { return mesh_; }
@@ -44,8 +47,24 @@ class GeometryModel {
   /// Unique per constructed model in this process (never reused, unlike an
   /// address): keys caches of derived data in query scratch.
   std::uint64_t uid() const { return uid_; }
+  /// The cells wholly inside a closed model (empty for an open one, or
+  /// where none fits between its walls).
+  const InteriorGrid& interior() const { return interior_; }
+
+  /// Up to kSamplePoints points spread over the surface component that
+  /// holds triangle 0's first vertex (the vertex a containment test uses),
+  /// in the mesh frame: vertices and points inside large triangles, picked
+  /// farthest first. One of them inside a closed solid puts that whole
+  /// component inside it unless the surfaces cross.
+  const std::vector<Vec3>& sample_points() const { return sample_points_; }
+  static constexpr int kSamplePoints = 64;
+
+  /// Cells along the longest axis of InteriorGrid.
+  static constexpr int kInteriorCells = 96;
 
  private:
+  void BuildInterior();     // interior_grid.cc
+  void PickSamplePoints();  // interior_grid.cc
   static std::uint64_t NextUid() {
     static std::atomic<std::uint64_t> next{1};
     return next.fetch_add(1, std::memory_order_relaxed);
@@ -57,6 +76,8 @@ class GeometryModel {
   double radius_about_com_ = 0;
   bool convex_ = false;
   std::optional<GaussArcTree> gauss_arcs_;
+  InteriorGrid interior_;
+  std::vector<Vec3> sample_points_;
 };
 
 using ModelPtr = std::shared_ptr<const GeometryModel>;

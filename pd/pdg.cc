@@ -813,6 +813,17 @@ Vec3 TurnAxis(int k) {
   return Vec3(k & 1 ? -1 : 1, k & 2 ? -1 : 1, k & 4 ? -1 : 1).normalized();
 }
 
+// Whether A at X collides with a closed B for certain: one of A's sample
+// points lies in a cell wholly inside B (PenetrationRequest::
+// cold_interior_cull), so the exact start check can be skipped.
+bool StartEnclosed(const PdgContext& c, const Pose& X) {
+  if (!c.request.cold_interior_cull || c.B.interior().empty()) return false;
+  std::array<Vec3, GeometryModel::kSamplePoints> points;
+  std::size_t n = 0;
+  for (const Vec3& p : c.A.sample_points()) points[n++] = X * p;
+  return c.B.interior().AnyInside(std::span(points.data(), n), Vec3::Zero());
+}
+
 PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budget,
                     PdStatus status) {
   // A turn of at most about 29 degrees (|v| = sin(theta / 2)): the
@@ -833,8 +844,10 @@ PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budg
       if (step.slide && t.norm() > 0) {
         z.tail<3>() = t.normalized() * std::sqrt(std::max(0.0, sigma0 - weight * v * v));
       }
+      const Pose X_start = At(c, z);
+      if (StartEnclosed(c, X_start)) continue;
       Pose X_contact;
-      if (OutProjectFrom(c, At(c, z), &X_contact) != Sweep::kHit) continue;
+      if (OutProjectFrom(c, X_start, &X_contact) != Sweep::kHit) continue;
       if (Sigma(c, Z(c, X_contact)) >= best->sigma) continue;
       AcceptSwept(c, X_contact, best);
       status = IterateContactSpace(c, best, iterations, budget);

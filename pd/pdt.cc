@@ -543,6 +543,23 @@ bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
       count > 1 ? static_cast<int>(kColdLocalSpreads.size()) * kColdLocalDirections : 0;
   bool have_best = false;
   double best_norm = d.cold_search_bound;
+  // A's sample points in B's frame at the query pose, when B has inside
+  // cells: a start that puts one of them in such a cell collides (A's
+  // surface crosses B's, or the component of A that a containment test
+  // looks at lies inside B), so its direction is dropped at once.
+  std::array<Vec3, GeometryModel::kSamplePoints> samples;
+  std::size_t sample_count = 0;
+  if (c.request.cold_interior_cull && !c.B.interior().empty()) {
+    for (const Vec3& p : c.A.sample_points()) samples[sample_count++] = c.X_BA * p;
+  }
+  // The outcome of a sweep from the start x_from (not known to be free)
+  // towards the query pose.
+  auto sweep_in_from = [&](const Vec3& x_from, Vec3* x_out) {
+    if (c.B.interior().AnyInside(std::span(samples.data(), sample_count), x_from)) {
+      return SweepOutcome::kStartColliding;
+    }
+    return SweepFrom(c, x_from, Vec3::Zero(), x_out, true, true);
+  };
   for (int k = 0; k < count + local; ++k) {
     if (k >= count && !have_best) break;
     const Vec3 u =
@@ -553,13 +570,13 @@ bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
       // improvement tolerance is worth a refinement.
       const double reach = best_norm * (1 - c.request.improvement_tolerance);
       // Most of these starts overlap (a shallower answer is rare).
-      SweepOutcome o = SweepFrom(c, u * reach, Vec3::Zero(), &x, true, true);
+      SweepOutcome o = sweep_in_from(u * reach, &x);
       if (o == SweepOutcome::kStartColliding && have_best &&
           u.dot(*best) < kColdPocketCos * best_norm) {
         // The far side of the body the best answer leaves by: its start
         // just inside the best depth can lie past a free pocket (the probe
         // between a bunny's ears), so one more start closer in.
-        o = SweepFrom(c, u * (kColdPocketStart * reach), Vec3::Zero(), &x, true, true);
+        o = sweep_in_from(u * (kColdPocketStart * reach), &x);
       }
       if (o != SweepOutcome::kHit) continue;
       d.cold_answer_features.swap(d.best_features);  // keep the best answer's

@@ -83,6 +83,7 @@ struct ColdCmdOptions {
   std::string poses_from;
   int cold_directions = pd::PenetrationRequest{}.cold_start_directions;
   int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts;
+  bool no_interior_cull = false;
   int poses = 16;
   std::uint64_t seed = 1;
 };
@@ -96,6 +97,7 @@ void RunColdCmd(const ColdCmdOptions& o) {
   c.poses_from = o.poses_from;
   c.cold_directions = o.cold_directions;
   c.turn_starts = o.turn_starts;
+  c.interior_cull = !o.no_interior_cull;
   MakeOutputFolder("cold", "--out", o.out);
   const std::filesystem::path out(o.out);
   std::ostream& notes = o.json ? std::cerr : std::cout;
@@ -112,6 +114,7 @@ void RunColdCmd(const ColdCmdOptions& o) {
   if (!o.poses_from.empty()) command += " --poses-from " + o.poses_from;
   command += " --cold-directions " + std::to_string(o.cold_directions);
   command += " --turn-starts " + std::to_string(o.turn_starts);
+  if (o.no_interior_cull) command += " --no-interior-cull";
   const std::string date = UtcNow();
   const std::filesystem::path svg = out / "cold.svg";
   try {
@@ -214,6 +217,10 @@ void RegisterOracleBenches(CLI::App& app) {
                     "0 none)")
         ->check(CLI::Range(0, pd::kPdgColdTurnStarts))
         ->capture_default_str();
+    cmd->add_flag("--no-interior-cull", o->no_interior_cull,
+                  "Run the exact start check on every escape direction and turn start "
+                  "(PenetrationRequest::cold_interior_cull off), to compare: the same answers "
+                  "without the work budget");
     cmd->callback([o] { RunColdCmd(*o); });
   }
 }

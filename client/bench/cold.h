@@ -86,6 +86,8 @@ struct ColdOptions {
   int cold_directions = pd::PenetrationRequest{}.cold_start_directions;
   /// PenetrationRequest::pdg_cold_turn_starts of every PDg query.
   int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts;
+  /// PenetrationRequest::cold_interior_cull of every query.
+  bool interior_cull = pd::PenetrationRequest{}.cold_interior_cull;
 };
 
 /// Draws `options.poses` colliding poses per pair (a uniformly random
@@ -156,12 +158,14 @@ struct ColdAnswer {
 /// one-shot command), PDg with the default budget. Each on its own query
 /// data, coherence off, with `cold_directions` escape directions
 /// (PenetrationRequest::cold_start_directions) and `turn_starts` PDg turn
-/// starts (PenetrationRequest::pdg_cold_turn_starts); time is the wall clock
-/// of the call.
+/// starts (PenetrationRequest::pdg_cold_turn_starts), the interior cull as
+/// `interior_cull` (PenetrationRequest::cold_interior_cull); time is the
+/// wall clock of the call.
 std::vector<ColdAnswer> RunColdQueries(
     const std::vector<ColdPair>& pairs, const std::vector<ColdPose>& poses, bool diagnose,
     int cold_directions = pd::PenetrationRequest{}.cold_start_directions,
-    int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts);
+    int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts,
+    bool interior_cull = pd::PenetrationRequest{}.cold_interior_cull);
 
 struct ColdSummary {
   ColdKind kind = ColdKind::kPdt;

@@ -273,6 +273,9 @@ def run_cold_directions(r):
     r.run([r.exe("hapticpd-bench"), "cold", "--poses-from", str(poses), "--turn-starts", "0",
            "--out", str(r.out), "--json"], "turnless.json",
           f"{B}/hapticpd-bench cold --poses-from cold16.json --turn-starts 0 --json")
+    r.run([r.exe("hapticpd-bench"), "cold", "--poses-from", str(poses), "--no-interior-cull",
+           "--out", str(r.out), "--json"], "nocull.json",
+          f"{B}/hapticpd-bench cold --poses-from cold16.json --no-interior-cull --json")
 
 
 def run_cold_stored(r):
@@ -826,6 +829,7 @@ def render_cold_directions(root):
     runs = [(f"{n}" + (" (default)" if n == 141 else ""), f"directions{n}.json")
             for n in COLD_DIRECTIONS]
     runs.append(("141, no PDg turn starts", "turnless.json"))
+    runs.append(("141, no interior cull", "nocull.json"))
     for label, name in runs:
         p = d / name
         if not p.is_file():
@@ -848,8 +852,8 @@ def render_cold_directions(root):
     return "\n".join([
         conditions(d, "the poses and references of the run above",
                    f"`{B}/hapticpd-bench cold --poses-from cold16.json --cold-directions N "
-                   f"--json` for N = {', '.join(str(n) for n in COLD_DIRECTIONS)}, and "
-                   f"`--turn-starts 0`"), "",
+                   f"--json` for N = {', '.join(str(n) for n in COLD_DIRECTIONS)}, "
+                   f"`--turn-starts 0` and `--no-interior-cull`"), "",
         table(["escape directions", "PDt > 1.01", "PDt > 1.10", "PDt max", "PDt p50 µs",
                "PDt p99 µs", "PDg > 1.01", "PDg > 1.10", "PDg p50 µs"], body)] + note)
 

@@ -10,7 +10,8 @@
 // Run three ways: with the defaults; with the cold search's 13 fixed
 // directions only (the weaker PDt search, which fails the default PDt
 // thresholds); and without PDg's turn starts (which fails the default PDg
-// thresholds: the test checks that it does).
+// thresholds: the test checks that it does). The interior cull is checked
+// against the exact start check it replaces.
 // Presets: every preset (pd_tests).
 #include <gtest/gtest.h>
 
@@ -20,6 +21,8 @@
 #include <utility>
 
 #include "client/bench/cold.h"
+#include "pd/pdg.h"
+#include "pd/pdt.h"
 
 namespace hapticpd::bench {
 namespace {
@@ -144,6 +147,46 @@ TEST_F(ColdAccuracy, PdgWithoutTurnStartsMissesTheThresholds) {
       EXPECT_GT(s.above_1_10, t.above_1_10);
     }
   }
+}
+
+// The interior cull (PenetrationRequest::cold_interior_cull) drops a start
+// only where the exact check would find it colliding: every PDt answer and
+// every unbudgeted PDg answer is the same with it off, bit for bit, and
+// against the closed scenes PDt runs far fewer sweeps with it.
+TEST_F(ColdAccuracy, InteriorCullKeepsEveryAnswerWithFewerSweeps) {
+  std::map<std::string, const ColdPair*> by_name;
+  for (const ColdPair& p : *pairs_) by_name[p.name] = &p;
+  pd::PenetrationRequest on;
+  on.use_coherence = false;
+  on.pdg_iteration_budget = 0;
+  pd::PenetrationRequest off = on;
+  off.cold_interior_cull = false;
+  long sweeps_on = 0, sweeps_off = 0;
+  int closed_scene_poses = 0;
+  for (const ColdPose& pose : *poses_) {
+    const ColdPair& pair = *by_name.at(pose.pair);
+    SCOPED_TRACE(pair.name + " at depth " + std::to_string(pose.depth_fraction));
+    pd::PdQueryData data_on, data_off;
+    pd::PenetrationResult t_on, t_off;
+    pd::ComputePdt(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), on, &data_on, &t_on);
+    pd::ComputePdt(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), off, &data_off, &t_off);
+    ASSERT_EQ(t_on.status, t_off.status);
+    EXPECT_EQ(t_on.translation_W, t_off.translation_W);
+    if (pair.scene->closed() && !pair.convex) {
+      ++closed_scene_poses;
+      sweeps_on += t_on.ccd_queries;
+      sweeps_off += t_off.ccd_queries;
+    }
+    pd::PdgQueryData g_on, g_off;
+    pd::PenetrationResult r_on, r_off;
+    pd::ComputePdg(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), on, &g_on, &r_on);
+    pd::ComputePdg(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), off, &g_off, &r_off);
+    ASSERT_EQ(r_on.status, r_off.status);
+    EXPECT_EQ(r_on.sigma, r_off.sigma);
+    EXPECT_EQ(r_on.X_WA_result.t, r_off.X_WA_result.t);
+  }
+  ASSERT_GT(closed_scene_poses, 0);
+  EXPECT_LT(sweeps_on, 0.6 * sweeps_off) << sweeps_on << " against " << sweeps_off;
 }
 
 }  // namespace
