@@ -34,6 +34,11 @@ class InteriorGrid {
     Classify(inside);
   }
 
+  /// At most this many enclosed components are classified (PointInside
+  /// each); the rest are left out, so a mesh of very many small enclosed
+  /// pockets stays cheap to build.
+  static constexpr int kMaxInsideTests = 4096;
+
   bool empty() const { return inside_count_ == 0; }
   int inside_cells() const { return inside_count_; }
   /// Whether p (mesh frame) lies in an inside cell.
@@ -61,13 +66,15 @@ class InteriorGrid {
   template <typename InsideFn>
   void Classify(InsideFn&& inside) {
     std::vector<std::int64_t> todo;
+    int tests = 0;
     for (std::size_t c = 0; c < cells_.size(); ++c) {
       if (cells_[c] != kUnknown) continue;
       const auto ci = static_cast<std::int64_t>(c);
       const Vec3 centre = lo_ + h_ * Vec3(static_cast<double>(ci % n_[0]) + 0.5,
                                           static_cast<double>((ci / n_[0]) % n_[1]) + 0.5,
                                           static_cast<double>(ci / (n_[0] * n_[1])) + 0.5);
-      Fill(ci, inside(centre) ? kInside : kVoid, &todo);
+      const bool in = ++tests <= kMaxInsideTests && inside(centre);
+      Fill(ci, in ? kInside : kVoid, &todo);
     }
   }
   // Labels the component of unknown cells holding `start`.

@@ -146,6 +146,37 @@ TEST(InteriorGrid, PointsOutsideTheGridOrNotFiniteAreNotInside) {
   }
 }
 
+TEST(InteriorGrid, ManyEnclosedPocketsStopAtTheTestCap) {
+  // 17^3 closed cubes, each enclosing its own cells: more components than
+  // InteriorGrid classifies with PointInside; the rest stay out.
+  constexpr int kPerAxis = 17;
+  const Mesh cube = shapes::Box(Vec3::Constant(0.02));
+  std::vector<Vec3> v;
+  std::vector<Triangle> t;
+  std::vector<Vec3> centres;
+  for (int i = 0; i < kPerAxis; ++i) {
+    for (int j = 0; j < kPerAxis; ++j) {
+      for (int k = 0; k < kPerAxis; ++k) {
+        const Vec3 c = 0.06 * Vec3(i, j, k);
+        centres.push_back(c);
+        const auto offset = static_cast<Index>(v.size());
+        for (const Vec3& p : cube.vertices()) v.push_back(p + c);
+        for (Triangle f : cube.triangles()) {
+          for (Index& q : f) q += offset;
+          t.push_back(f);
+        }
+      }
+    }
+  }
+  const GeometryModel model(Mesh::FromArrays(std::move(v), std::move(t), "cubes"));
+  ASSERT_TRUE(model.closed());
+  int inside = 0;
+  for (const Vec3& c : centres) inside += model.interior().Inside(c);
+  EXPECT_GT(inside, 0);
+  EXPECT_LE(inside, InteriorGrid::kMaxInsideTests);
+  EXPECT_LT(inside, static_cast<int>(centres.size()));
+}
+
 TEST(SamplePoints, SpreadOverTheSurfaceOfTheFirstComponent) {
   // The stick's vertices sit on its end caps only: the samples must cover
   // its length too (points inside its long side triangles).
