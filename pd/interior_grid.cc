@@ -189,7 +189,11 @@ void GeometryModel::PickSamplePoints() {
       }
     }
   }
-  // At most 4,096 of them (evenly by index), then farthest-point picks.
+  // At most 4,096 of them (evenly by index), then farthest-point picks. A
+  // near tie (a symmetric shape: a cube's corners) goes to the lowest index,
+  // so that a change of the mesh far below its precision picks the same
+  // points: which starts a cold query drops decides how much of PDg's work
+  // budget is left, and so a budgeted answer.
   if (candidates.size() > 4096) {
     std::vector<Vec3> kept;
     for (std::size_t k = 0; k < 4096; ++k) kept.push_back(candidates[k * candidates.size() / 4096]);
@@ -199,11 +203,14 @@ void GeometryModel::PickSamplePoints() {
   std::size_t next = 0;
   for (int k = 0; k < kSamplePoints && k < static_cast<int>(candidates.size()); ++k) {
     sample_points_.push_back(candidates[next]);
-    std::size_t far = 0;
+    double farthest = 0;
     for (std::size_t q = 0; q < candidates.size(); ++q) {
       dist[q] = std::min(dist[q], (candidates[q] - candidates[next]).squaredNorm());
-      if (dist[q] > dist[far]) far = q;
+      farthest = std::max(farthest, dist[q]);
     }
+    if (!(farthest > 0)) break;  // every candidate picked (or repeated)
+    std::size_t far = 0;
+    while (dist[far] < farthest * (1 - 1e-6)) ++far;
     next = far;
   }
 }
