@@ -13,16 +13,17 @@ class Mesh;
 /// Cells of a regular grid over a closed mesh that lie wholly inside it: no
 /// surface passes through such a cell, and its points have a nonzero winding
 /// number (PointInside holds for each of them). A point in one of these
-/// cells is inside the solid, so a probe with a vertex there collides with
-/// it (its surface crosses the solid's, or it lies inside it); a cold query
-/// drops an escape direction on that cheap test before the exact one.
+/// cells is inside the solid, so a probe with a point of its surface there
+/// collides with it (its surface crosses the solid's, or it lies inside
+/// it); a cold query drops a start on that cheap test before the exact one
+/// (PenetrationRequest::cold_interior_cull).
 ///
-/// Surface cells are found conservatively (each triangle against each cell
-/// its box touches, by separating axes, the cell inflated for round-off);
-/// the other cells split into connected components, the one reaching the
-/// grid's border is outside, and each enclosed component is classified by
-/// one PointInside of its first cell's centre (an enclosed void of a hollow
-/// solid stays out).
+/// Surface cells are found conservatively (each triangle by separating axes
+/// against the cells of its box that lie near its plane, each cell inflated
+/// for round-off); the other cells split into connected components, the one
+/// reaching the grid's border is outside, and each enclosed component is
+/// classified by one PointInside of its first cell's centre (an enclosed
+/// void of a hollow solid stays out).
 class InteriorGrid {
  public:
   InteriorGrid() = default;
