@@ -178,14 +178,17 @@ void GeometryModel::PickSamplePoints() {
     const Vec3 &a = V[t[0]], &b = V[t[1]], &c = V[t[2]];
     const double longest = std::max({(b - a).norm(), (c - b).norm(), (a - c).norm()});
     const int m = std::min(16, static_cast<int>(longest / step));
+    if (m == 0) {  // a small triangle: its centroid
+      const double third = 1.0 / 3;
+      candidates.push_back(a + third * (b - a) + third * (c - a));
+      continue;
+    }
+    // The grid of step 1/m on the triangle, without its corners (vertices).
+    const double s = 1.0 / m;
     for (int i = 0; i <= m; ++i) {
       for (int j = 0; i + j <= m; ++j) {
-        if (m == 0 || (i + j > 0 && i < m && j < m && i + j < m) ||
-            (i + j == m && i > 0 && j > 0)) {
-          const double s = m > 0 ? 1.0 / m : 1.0 / 3;
-          const double wi = m > 0 ? i * s : s, wj = m > 0 ? j * s : s;
-          candidates.push_back(a + wi * (b - a) + wj * (c - a));
-        }
+        if ((i == 0 && j == 0) || i == m || j == m) continue;
+        candidates.push_back(a + (i * s) * (b - a) + (j * s) * (c - a));
       }
     }
   }

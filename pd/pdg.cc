@@ -818,10 +818,10 @@ Vec3 TurnAxis(int k) {
 // cold_interior_cull), so the exact start check can be skipped.
 bool StartEnclosed(const PdgContext& c, const Pose& X) {
   if (!c.request.cold_interior_cull || c.B.interior().empty()) return false;
-  std::array<Vec3, GeometryModel::kSamplePoints> points;
-  std::size_t n = 0;
-  for (const Vec3& p : c.A.sample_points()) points[n++] = X * p;
-  return c.B.interior().AnyInside(std::span(points.data(), n), Vec3::Zero());
+  for (const Vec3& p : c.A.sample_points()) {
+    if (c.B.interior().Inside(X * p)) return true;
+  }
+  return false;
 }
 
 PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budget,
