@@ -149,6 +149,19 @@ TEST_F(ColdAccuracy, PdgWithoutTurnStartsMissesTheThresholds) {
   }
 }
 
+// The answers of `compute` (ComputePdt or ComputePdg, with its query data
+// type Data) at `pose` under `a` and `b`, each on fresh query data.
+template <typename Data, typename Compute>
+std::pair<pd::PenetrationResult, pd::PenetrationResult> AnswersUnder(
+    Compute compute, const ColdPair& pair, const ColdPose& pose, const pd::PenetrationRequest& a,
+    const pd::PenetrationRequest& b) {
+  std::pair<pd::PenetrationResult, pd::PenetrationResult> r;
+  Data data_a, data_b;
+  compute(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), a, &data_a, &r.first);
+  compute(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), b, &data_b, &r.second);
+  return r;
+}
+
 // The interior cull (PenetrationRequest::cold_interior_cull) drops a start
 // only where the exact check would find it colliding: every PDt answer and
 // every unbudgeted PDg answer is the same with it off, bit for bit, and
@@ -166,10 +179,7 @@ TEST_F(ColdAccuracy, InteriorCullKeepsEveryAnswerWithFewerSweeps) {
   for (const ColdPose& pose : *poses_) {
     const ColdPair& pair = *by_name.at(pose.pair);
     SCOPED_TRACE(pair.name + " at depth " + std::to_string(pose.depth_fraction));
-    pd::PdQueryData data_on, data_off;
-    pd::PenetrationResult t_on, t_off;
-    pd::ComputePdt(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), on, &data_on, &t_on);
-    pd::ComputePdt(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), off, &data_off, &t_off);
+    const auto [t_on, t_off] = AnswersUnder<pd::PdQueryData>(pd::ComputePdt, pair, pose, on, off);
     ASSERT_EQ(t_on.status, t_off.status);
     EXPECT_EQ(t_on.translation_W, t_off.translation_W);
     if (pair.scene->closed() && !pair.convex) {
@@ -177,10 +187,7 @@ TEST_F(ColdAccuracy, InteriorCullKeepsEveryAnswerWithFewerSweeps) {
       sweeps_on += t_on.ccd_queries;
       sweeps_off += t_off.ccd_queries;
     }
-    pd::PdgQueryData g_on, g_off;
-    pd::PenetrationResult r_on, r_off;
-    pd::ComputePdg(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), on, &g_on, &r_on);
-    pd::ComputePdg(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), off, &g_off, &r_off);
+    const auto [r_on, r_off] = AnswersUnder<pd::PdgQueryData>(pd::ComputePdg, pair, pose, on, off);
     ASSERT_EQ(r_on.status, r_off.status);
     EXPECT_EQ(r_on.sigma, r_off.sigma);
     EXPECT_EQ(r_on.X_WA_result.t, r_off.X_WA_result.t);
