@@ -60,11 +60,14 @@ double CapAngle(const Vec3& a, const Vec3& b) {
   return std::atan2(a.cross(b).norm(), a.dot(b));
 }
 
-// Whether two caps (centres ca, cb, radii ra, rb) can share a point;
-// generous by a small angle so that rounding never drops a crossing.
-bool CapsMeet(const Vec3& ca, double ra, const Vec3& cb, double rb) {
-  const double reach = ra + rb + 1e-7;
-  return reach >= std::numbers::pi || ca.dot(cb) >= std::cos(reach);
+// Whether two caps of the arc trees (centres ca, cb) can share a point: the
+// angle between the centres is at most ra + rb, i.e. ca.cb >= cos(ra + rb),
+// expanded from the radii's stored cosines and sines. Generous by 2e-7 (more
+// than a 1e-7 rad wider reach) so that rounding never drops a crossing.
+bool CapsMeet(const Vec3& ca, const GaussArcTree::Node& a, const Vec3& cb,
+              const GaussArcTree::Node& b) {
+  if (a.r + b.r + 1e-7 >= std::numbers::pi) return true;
+  return ca.dot(cb) >= a.cos_r * b.cos_r - a.sin_r * b.sin_r - 2e-7;
 }
 
 }  // namespace
@@ -93,7 +96,7 @@ GaussArcTree::GaussArcTree(const Mesh& mesh) {
 
 int GaussArcTree::Build(int first, int count) {
   const int index = static_cast<int>(nodes_.size());
-  nodes_.push_back({Vec3::UnitZ(), std::numbers::pi, first, count});
+  nodes_.push_back({Vec3::UnitZ(), std::numbers::pi, -1, 0, first, count});
   Vec3 mean = Vec3::Zero();
   Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
   for (int i = first; i < first + count; ++i) {
@@ -131,6 +134,8 @@ int GaussArcTree::Build(int first, int count) {
     nodes_[index].c = c;
     nodes_[index].r = std::min(r, std::numbers::pi);
   }
+  nodes_[index].cos_r = std::cos(nodes_[index].r);
+  nodes_[index].sin_r = std::sin(nodes_[index].r);
   return index;
 }
 
@@ -218,19 +223,30 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const GaussArcTree& arcs_a, const Pose&
   if (!arcs_a.nodes().empty() && !arcs_b.nodes().empty()) {
     const auto& NA = arcs_a.nodes();
     const auto& NB = arcs_b.nodes();
+    // A's cap centres and arcs turned into B's frame once: a node or an arc
+    // meets many of B's.
+    std::vector<Vec3> centre_a(NA.size());
+    for (std::size_t k = 0; k < NA.size(); ++k) centre_a[k] = R * NA[k].c;
+    struct TurnedArc {
+      Vec3 n1, n2, plane;
+    };
+    std::vector<TurnedArc> arc_a(arcs_a.arcs().size());
+    for (std::size_t k = 0; k < arc_a.size(); ++k) {
+      const GaussArcTree::Arc& x = arcs_a.arcs()[k];
+      arc_a[k] = {R * x.n0, R * x.n1, R * x.plane};
+    }
     std::vector<std::pair<int, int>> stack{{0, 0}};
     while (!stack.empty()) {
       const auto [ia, ib] = stack.back();
       stack.pop_back();
       const GaussArcTree::Node& na = NA[ia];
       const GaussArcTree::Node& nb = NB[ib];
-      if (!CapsMeet(R * na.c, na.r, -nb.c, nb.r)) continue;
+      if (!CapsMeet(centre_a[ia], na, -nb.c, nb)) continue;
       if (na.leaf() && nb.leaf()) {
         for (int i = na.first; i < na.first + na.count; ++i) {
-          const GaussArcTree::Arc& x = arcs_a.arcs()[i];
-          const Vec3 n1 = R * x.n0, n2 = R * x.n1, bxa = R * x.plane;
+          const TurnedArc& x = arc_a[i];
           for (int j = nb.first; j < nb.first + nb.count; ++j) {
-            edge_pair(n1, n2, bxa, x.edge, arcs_b.arcs()[j]);
+            edge_pair(x.n1, x.n2, x.plane, arcs_a.arcs()[i].edge, arcs_b.arcs()[j]);
           }
         }
       } else if (nb.leaf() || (!na.leaf() && na.r >= nb.r)) {

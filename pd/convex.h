@@ -42,6 +42,7 @@ class GaussArcTree {
   struct Node {
     Vec3 c;                     ///< cap centre (unit)
     double r;                   ///< cap radius (rad), covering every arc below
+    double cos_r, sin_r;        ///< of r, so that the cap test needs no trigonometry
     int first, count;           ///< leaf: arcs [first, first + count)
     int left = -1, right = -1;  ///< inner node: children
     bool leaf() const { return left < 0; }
@@ -52,7 +53,7 @@ class GaussArcTree {
   const std::vector<Node>& nodes() const { return nodes_; }
 
  private:
-  static constexpr int kLeafSize = 8;
+  static constexpr int kLeafSize = 4;
   int Build(int first, int count);
   std::vector<Arc> arcs_;
   std::vector<Node> nodes_;
