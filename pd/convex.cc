@@ -70,6 +70,16 @@ bool CapsMeet(const Vec3& ca, const GaussArcTree::Node& a, const Vec3& cb,
   return ca.dot(cb) >= a.cos_r * b.cos_r - a.sin_r * b.sin_r - 2e-7;
 }
 
+// The largest -n.w over the unit vectors n of the cap with centre c (unit)
+// and the node's radius: |w| cos(max(0, theta - r)), theta the angle
+// between c and -w.
+double CapMaxAgainst(const Vec3& c, const GaussArcTree::Node& node, const Vec3& w) {
+  const double len = w.norm();
+  const double k = -c.dot(w);  // |w| cos(theta)
+  if (node.r >= std::numbers::pi || k >= len * node.cos_r) return len;
+  return k * node.cos_r + std::sqrt(std::max(0.0, len * len - k * k)) * node.sin_r;
+}
+
 }  // namespace
 
 GaussArcTree::GaussArcTree(const Mesh& mesh) {
@@ -92,6 +102,20 @@ GaussArcTree::GaussArcTree(const Mesh& mesh) {
   }
   nodes_.reserve(2 * arcs_.size() / kLeafSize + 2);
   if (!arcs_.empty()) Build(0, static_cast<int>(arcs_.size()));
+  // Each cap's support vertex: ConvexPdt bounds the separation along every
+  // axis of a node pair by the two supports' difference.
+  const std::vector<Vec3>& v = mesh.vertices();
+  for (Node& node : nodes_) {
+    double far = -std::numeric_limits<double>::infinity();
+    for (int i = node.first; i < node.first + node.count; ++i) {
+      for (const Index k : edges[arcs_[i].edge].v) {
+        if (node.c.dot(v[k]) > far) {
+          far = node.c.dot(v[k]);
+          node.support = k;
+        }
+      }
+    }
+  }
 }
 
 int GaussArcTree::Build(int first, int count) {
@@ -225,8 +249,13 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const GaussArcTree& arcs_a, const Pose&
     const auto& NB = arcs_b.nodes();
     // A's cap centres and arcs turned into B's frame once: a node or an arc
     // meets many of B's.
-    std::vector<Vec3> centre_a(NA.size());
-    for (std::size_t k = 0; k < NA.size(); ++k) centre_a[k] = R * NA[k].c;
+    std::vector<Vec3> centre_a(NA.size()), support_a(NA.size()), support_b(NB.size());
+    const Mat3 R_BW = X_WB.R.transpose();
+    for (std::size_t k = 0; k < NA.size(); ++k) {
+      centre_a[k] = R * NA[k].c;
+      support_a[k] = R_BW * a.v[NA[k].support];
+    }
+    for (std::size_t k = 0; k < NB.size(); ++k) support_b[k] = R_BW * b.v[NB[k].support];
     struct TurnedArc {
       Vec3 n1, n2, plane;
     };
@@ -242,6 +271,15 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const GaussArcTree& arcs_a, const Pose&
       const GaussArcTree::Node& na = NA[ia];
       const GaussArcTree::Node& nb = NB[ib];
       if (!CapsMeet(centre_a[ia], na, -nb.c, nb)) continue;
+      // Every axis u of this pair's edge pairs is -n for a normal n of A in
+      // both caps, and the separation along u is at most u.(p_A - p_B) for
+      // any points of A and B: with the caps' supports, nothing here can
+      // beat the best axis so far once that bound falls below it.
+      const Vec3 w = support_a[ia] - support_b[ib];
+      if (std::min(CapMaxAgainst(centre_a[ia], na, w), CapMaxAgainst(-nb.c, nb, w)) <
+          best_sep - 1e-9 * w.norm()) {
+        continue;
+      }
       if (na.leaf() && nb.leaf()) {
         for (int i = na.first; i < na.first + na.count; ++i) {
           const TurnedArc& x = arc_a[i];

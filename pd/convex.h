@@ -43,7 +43,8 @@ class GaussArcTree {
     Vec3 c;                     ///< cap centre (unit)
     double r;                   ///< cap radius (rad), covering every arc below
     double cos_r, sin_r;        ///< of r, so that the cap test needs no trigonometry
-    int first, count;           ///< leaf: arcs [first, first + count)
+    int first, count;           ///< the arcs [first, first + count) below
+    Index support = 0;          ///< the arcs' edge end point farthest along c
     int left = -1, right = -1;  ///< inner node: children
     bool leaf() const { return left < 0; }
   };
