@@ -247,8 +247,8 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const GaussArcTree& arcs_a, const Pose&
   if (!arcs_a.nodes().empty() && !arcs_b.nodes().empty()) {
     const auto& NA = arcs_a.nodes();
     const auto& NB = arcs_b.nodes();
-    // A's cap centres and arcs turned into B's frame once: a node or an arc
-    // meets many of B's.
+    // A's cap centres and arcs turned into B's frame once (a node or an arc
+    // meets many of B's), and both trees' support vertices placed there.
     std::vector<Vec3> centre_a(NA.size()), support_a(NA.size()), support_b(NB.size());
     const Mat3 R_BW = X_WB.R.transpose();
     for (std::size_t k = 0; k < NA.size(); ++k) {

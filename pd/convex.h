@@ -64,7 +64,9 @@ class GaussArcTree {
 /// Cost: each face axis one product with the last support vertex, and a
 /// scan of the other body's vertices only where that bound does not rule
 /// it out; the edge pairs whose Gauss-map arcs' bounding caps meet (found
-/// by the two meshes' arc trees, built here), instead of all E_A E_B.
+/// by the two meshes' arc trees, built here), instead of all E_A E_B, less
+/// the cap pairs where the caps' support vertices bound every axis's
+/// separation below the best so far.
 ConvexPdtResult ConvexPdt(const Mesh& A, const Pose& X_WA, const Mesh& B, const Pose& X_WB);
 
 /// The same with the meshes' arc trees built beforehand (`arcs_A` from A,
