@@ -34,17 +34,12 @@ namespace {
 struct Placed {
   std::vector<Vec3> v;  // world vertices
   std::vector<Vec3> n;  // world face normals
-  Vec3 centroid = Vec3::Zero();
 };
 
 Placed Place(const Mesh& m, const Pose& X) {
   Placed p;
   p.v.reserve(m.num_vertices());
-  for (const Vec3& x : m.vertices()) {
-    p.v.push_back(X * x);
-    p.centroid += p.v.back();
-  }
-  p.centroid /= static_cast<double>(p.v.size());
+  for (const Vec3& x : m.vertices()) p.v.push_back(X * x);
   p.n.reserve(m.num_triangles());
   for (const Vec3& n : m.face_normals()) p.n.push_back(X.R * n);
   return p;
@@ -258,11 +253,12 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const GaussArcTree& arcs_a, const Pose&
     for (std::size_t k = 0; k < NB.size(); ++k) support_b[k] = R_BW * b.v[NB[k].support];
     struct TurnedArc {
       Vec3 n1, n2, plane;
+      std::size_t edge;
     };
     std::vector<TurnedArc> arc_a(arcs_a.arcs().size());
     for (std::size_t k = 0; k < arc_a.size(); ++k) {
       const GaussArcTree::Arc& x = arcs_a.arcs()[k];
-      arc_a[k] = {R * x.n0, R * x.n1, R * x.plane};
+      arc_a[k] = {R * x.n0, R * x.n1, R * x.plane, x.edge};
     }
     std::vector<std::pair<int, int>> stack{{0, 0}};
     while (!stack.empty()) {
@@ -284,7 +280,7 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const GaussArcTree& arcs_a, const Pose&
         for (int i = na.first; i < na.first + na.count; ++i) {
           const TurnedArc& x = arc_a[i];
           for (int j = nb.first; j < nb.first + nb.count; ++j) {
-            edge_pair(x.n1, x.n2, x.plane, arcs_a.arcs()[i].edge, arcs_b.arcs()[j]);
+            edge_pair(x.n1, x.n2, x.plane, x.edge, arcs_b.arcs()[j]);
           }
         }
       } else if (nb.leaf() || (!na.leaf() && na.r >= nb.r)) {
