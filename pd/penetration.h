@@ -47,8 +47,8 @@ inline constexpr int kColdStartDirections = 13;
 inline constexpr int kColdSearchDirections = kColdStartDirections + 128;
 /// The most escape directions a cold search may be asked for.
 inline constexpr int kMaxColdSearchDirections = 4096;
-/// PDg's cold turn starts: 7 turn sizes times 14 axes.
-inline constexpr int kPdgColdTurnStarts = 98;
+/// PDg's cold turn starts: 3 turn sizes times 14 axes.
+inline constexpr int kPdgColdTurnStarts = 42;
 
 struct PenetrationRequest {
   /// Contact tolerance as a fraction of the scene body's size (bounding-box
@@ -133,10 +133,11 @@ struct PenetrationRequest {
   /// starts follow the iteration from PDt's answer once it has converged, at
   /// most kPdgColdTurnStarts (all, the default); 0: none. Each turns the
   /// probe about one of its principal axes or diagonals by part of the best
-  /// sigma so far and, where that is free, out-projects and iterates from
-  /// there: it finds the turns that free a wedged probe cheaply, which the
-  /// local iteration from PDt's translation does not. Most cost one
-  /// early-out collision test. They count against pdg_iteration_budget.
+  /// sigma so far, slides it along the best translation by the rest and,
+  /// where that is free, out-projects and iterates from there: it finds the
+  /// turns that free a wedged probe cheaply, which the local iteration from
+  /// PDt's translation does not. Most cost one early-out collision test.
+  /// They count against pdg_iteration_budget.
   int pdg_cold_turn_starts = kPdgColdTurnStarts;
   /// PDg only: the probe's principal moments of inertia about its centre of
   /// mass divided by its mass (m^2), along the body frame's axes
