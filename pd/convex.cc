@@ -67,9 +67,8 @@ bool CapsMeet(const Vec3& ca, const GaussArcTree::Node& a, const Vec3& cb,
 
 // The largest -n.w over the unit vectors n of the cap with centre c (unit)
 // and the node's radius: |w| cos(max(0, theta - r)), theta the angle
-// between c and -w.
-double CapMaxAgainst(const Vec3& c, const GaussArcTree::Node& node, const Vec3& w) {
-  const double len = w.norm();
+// between c and -w; len = |w|.
+double CapMaxAgainst(const Vec3& c, const GaussArcTree::Node& node, const Vec3& w, double len) {
   const double k = -c.dot(w);  // |w| cos(theta)
   if (node.r >= std::numbers::pi || k >= len * node.cos_r) return len;
   return k * node.cos_r + std::sqrt(std::max(0.0, len * len - k * k)) * node.sin_r;
@@ -272,8 +271,9 @@ ConvexPdtResult ConvexPdt(const Mesh& A, const GaussArcTree& arcs_a, const Pose&
       // any points of A and B: with the caps' supports, nothing here can
       // beat the best axis so far once that bound falls below it.
       const Vec3 w = support_a[ia] - support_b[ib];
-      if (std::min(CapMaxAgainst(centre_a[ia], na, w), CapMaxAgainst(-nb.c, nb, w)) <
-          best_sep - 1e-9 * w.norm()) {
+      const double len = w.norm();
+      if (std::min(CapMaxAgainst(centre_a[ia], na, w, len), CapMaxAgainst(-nb.c, nb, w, len)) <
+          best_sep - 1e-9 * len) {
         continue;
       }
       if (na.leaf() && nb.leaf()) {

@@ -791,9 +791,8 @@ PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations, WorkBud
 // candidate that is free is out-projected towards the query pose (its sigma
 // only falls on the way), so it beats the best answer, and the iteration
 // goes on from it. Most candidates collide and cost one early-out collision
-// test. (Pure turns of 0.05 down to 0.0005 of sigma, with no slide, freed
-// no candidate on the cold benchmark's 192 poses: a turn about the centre
-// of mass alone leaves a deep probe colliding.)
+// test. Every candidate slides: a turn about the centre of mass alone leaves
+// a deep probe colliding.
 constexpr std::array<double, 3> kTurnFractions{0.9, 0.5, 0.2};
 constexpr int kTurnAxes = 14;  // 3 principal axes both ways, 8 diagonals
 static_assert(kPdgColdTurnStarts == static_cast<int>(kTurnFractions.size()) * kTurnAxes);
