@@ -58,6 +58,11 @@ class GeometryModel {
   /// component inside it unless the surfaces cross.
   const std::vector<Vec3>& sample_points() const { return sample_points_; }
   static constexpr int kSamplePoints = 64;
+  /// Whether triangle f belongs to that component (the one sample_points()
+  /// cover and a containment test looks at).
+  bool in_sampled_component(Index f) const {
+    return sampled_component_[static_cast<std::size_t>(f)];
+  }
 
   /// Cells along the longest axis of InteriorGrid.
   static constexpr int kInteriorCells = 96;
@@ -78,6 +83,7 @@ class GeometryModel {
   std::optional<GaussArcTree> gauss_arcs_;
   InteriorGrid interior_;
   std::vector<Vec3> sample_points_;
+  std::vector<bool> sampled_component_;  // per triangle
 };
 
 using ModelPtr = std::shared_ptr<const GeometryModel>;

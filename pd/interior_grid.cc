@@ -165,6 +165,8 @@ void GeometryModel::PickSamplePoints() {
     for (int k = 1; k < 3; ++k) parent[static_cast<std::size_t>(find(t[k]))] = find(t[0]);
   }
   const Index root = find(T[0][0]);
+  sampled_component_.resize(T.size());
+  for (std::size_t f = 0; f < T.size(); ++f) sampled_component_[f] = find(T[f][0]) == root;
   // Candidates: the component's vertices, and a barycentric grid on each of
   // its triangles longer than a sixteenth of the model's size (a stick's
   // or a box's few vertices sit at its ends and corners only).
@@ -216,6 +218,55 @@ void GeometryModel::PickSamplePoints() {
     while (dist[far] < farthest * (1 - 1e-6)) ++far;
     next = far;
   }
+}
+
+int PointsEnclosedBy(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
+                     std::span<Vec3> out, QueryScratch* scratch) {
+  if (A.interior().empty() || B.bvh().nodes().empty() || out.empty()) return 0;
+  const auto& NB = B.bvh().nodes();
+  const auto& PB = B.bvh().primitives();
+  const auto& V = B.mesh().vertices();
+  const auto& T = B.mesh().triangles();
+  const Pose X_AB = X_BA.Inverse();
+  const Mat3 abs_R_AB = X_AB.R.cwiseAbs();
+  const Aabb& a_box = A.mesh().bounds();
+  const Vec3 a_centre = a_box.Center();
+  const Vec3 a_half = 0.5 * a_box.Size();
+  const double cell = A.mesh().size() / kEnclosedPointSpacing;
+  // One candidate per B node of at most `cell` (or leaf) whose box meets
+  // A's: the first vertex of its first triangle in the sampled component
+  // that lies in an inside cell of A.
+  auto& found = scratch->points;
+  found.clear();
+  auto& stack = scratch->stack;
+  stack.clear();
+  stack.emplace_back(0, 0);
+  while (!stack.empty()) {
+    const BvhNode& n = NB[static_cast<std::size_t>(stack.back().first)];
+    stack.pop_back();
+    const Vec3 c = X_AB * n.center;
+    if ((((c - a_centre).cwiseAbs() - a_half - abs_R_AB * n.half).array() > 0).any()) continue;
+    if (!n.leaf() && n.half.maxCoeff() > cell) {
+      stack.emplace_back(n.first + 1, 0);
+      stack.emplace_back(n.first, 0);
+      continue;
+    }
+    const BvhNode* leaf = &n;
+    while (!leaf->leaf()) leaf = &NB[static_cast<std::size_t>(leaf->first)];
+    for (Index k = 0; k < leaf->count; ++k) {
+      const Index f = PB[static_cast<std::size_t>(leaf->first + k)];
+      if (!B.in_sampled_component(f)) continue;
+      const Vec3& p_B = V[static_cast<std::size_t>(T[static_cast<std::size_t>(f)][0])];
+      if (A.interior().Inside(X_AB * p_B)) found.push_back(p_B);
+      break;
+    }
+  }
+  // Evenly by the traversal's order (spatially coherent) when there are
+  // more than fit.
+  const std::size_t n = std::min(found.size(), out.size());
+  for (std::size_t k = 0; k < n; ++k) out[k] = found[k * found.size() / n];
+  found.clear();
+  return static_cast<int>(n);
 }
 
 }  // namespace hapticpd::pd

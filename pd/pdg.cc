@@ -804,13 +804,23 @@ Vec3 TurnAxis(int k) {
   return Vec3(k & 1 ? -1 : 1, k & 2 ? -1 : 1, k & 4 ? -1 : 1).normalized();
 }
 
-// Whether A at X collides with a closed B for certain: one of A's sample
-// points lies in a cell wholly inside B (PenetrationRequest::
-// cold_interior_cull), so the exact start check can be skipped.
-bool StartEnclosed(const PdgContext& c, const Pose& X) {
-  if (!c.request.cold_interior_cull || c.B.interior().empty()) return false;
-  for (const Vec3& p : c.A.sample_points()) {
-    if (c.B.interior().Inside(X * p)) return true;
+// Whether A at X collides with B for certain (PenetrationRequest::
+// cold_interior_cull), so the exact start check can be skipped: one of A's
+// sample points lies in a cell wholly inside a closed B, or one of
+// `enclosed` (points of B's surface, PointsEnclosedBy) in a cell wholly
+// inside a closed A.
+bool StartEnclosed(const PdgContext& c, const Pose& X, std::span<const Vec3> enclosed) {
+  if (!c.request.cold_interior_cull) return false;
+  if (!c.B.interior().empty()) {
+    for (const Vec3& p : c.A.sample_points()) {
+      if (c.B.interior().Inside(X * p)) return true;
+    }
+  }
+  if (!enclosed.empty()) {
+    const Pose X_AB = X.Inverse();
+    for (const Vec3& p : enclosed) {
+      if (c.A.interior().Inside(X_AB * p)) return true;
+    }
   }
   return false;
 }
@@ -821,6 +831,10 @@ PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budg
   // linearised contact space is far from right beyond.
   constexpr double kMaxV = 0.25;
   int tried = 0;
+  std::array<Vec3, GeometryModel::kSamplePoints> enclosed;
+  const int enclosed_count = c.request.cold_interior_cull && c.request.pdg_cold_turn_starts > 0
+                                 ? PointsEnclosedBy(c.A, c.X_BA, c.B, enclosed, &c.data.scratch)
+                                 : 0;
   for (const double fraction : kTurnFractions) {
     for (int k = 0; k < kTurnAxes; ++k) {
       if (tried++ >= c.request.pdg_cold_turn_starts) return status;
@@ -836,7 +850,7 @@ PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budg
         z.tail<3>() = t.normalized() * std::sqrt(std::max(0.0, sigma0 - weight * v * v));
       }
       const Pose X_start = At(c, z);
-      if (StartEnclosed(c, X_start)) continue;
+      if (StartEnclosed(c, X_start, std::span(enclosed.data(), enclosed_count))) continue;
       Pose X_contact;
       if (OutProjectFrom(c, X_start, &X_contact) != Sweep::kHit) continue;
       if (Sigma(c, Z(c, X_contact)) >= best->sigma) continue;

@@ -552,10 +552,25 @@ bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
   if (c.request.cold_interior_cull && !c.B.interior().empty()) {
     for (const Vec3& p : c.A.sample_points()) samples[sample_count++] = c.X_BA * p;
   }
+  // The other way round, when A has inside cells: points of B's surface in
+  // them at the query pose (in A's frame). A start that leaves one of them
+  // in such a cell collides too (B's surface crosses A's, or the component
+  // of B a containment test looks at lies inside A). Against an open scene
+  // this is the only cull.
+  std::array<Vec3, GeometryModel::kSamplePoints> enclosed;
+  std::size_t enclosed_count = 0;
+  if (c.request.cold_interior_cull) {
+    enclosed_count =
+        static_cast<std::size_t>(PointsEnclosedBy(c.A, c.X_BA, c.B, enclosed, &d.scratch));
+    const Pose X_AB = c.X_BA.Inverse();
+    for (std::size_t k = 0; k < enclosed_count; ++k) enclosed[k] = X_AB * enclosed[k];
+  }
   // The outcome of a sweep from the start x_from (not known to be free)
   // towards the query pose.
   auto sweep_in_from = [&](const Vec3& x_from, Vec3* x_out) {
-    if (c.B.interior().AnyInside(std::span(samples.data(), sample_count), x_from)) {
+    if (c.B.interior().AnyInside(std::span(samples.data(), sample_count), x_from) ||
+        c.A.interior().AnyInside(std::span(enclosed.data(), enclosed_count),
+                                 -(c.X_BA.R.transpose() * x_from))) {
       return SweepOutcome::kStartColliding;
     }
     return SweepFrom(c, x_from, Vec3::Zero(), x_out, true, true);

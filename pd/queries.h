@@ -15,6 +15,7 @@
 
 #include <array>
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "pd/geometry_model.h"
@@ -32,6 +33,7 @@ struct QueryScratch {
   };
   std::vector<KeyedPair> heap;        ///< best-first traversals (CCD)
   std::vector<KeyedPair> leaf_pairs;  ///< CCD: leaf pairs met, with entry times
+  std::vector<Vec3> points;           ///< PointsEnclosedBy's candidates
   /// Work counters, accumulated over every query using this scratch (reset
   /// them to measure one query): bounding-volume pair tests and triangle
   /// pairs examined.
@@ -115,6 +117,21 @@ bool Collide(const GeometryModel& A, const Pose& X_WA, const GeometryModel& B, c
 /// another direction). `p_M` in the model's mesh frame. For open models the
 /// answer is the parity along one ray and carries no guarantee.
 bool PointInside(const GeometryModel& model, const Vec3& p_M, QueryScratch* scratch);
+
+/// Candidates are spaced about A's size / kEnclosedPointSpacing apart.
+inline constexpr double kEnclosedPointSpacing = 32;
+
+/// Points of B's surface (B's frame) that lie in A's inside cells
+/// (GeometryModel::interior) with A at X_BA, at most out.size() of them,
+/// spread over the part of B within A's bounding box: a vertex of B's
+/// sampled component (GeometryModel::in_sampled_component) from each BVH
+/// node of about A's size / kEnclosedPointSpacing. A at a pose that keeps
+/// one of them in an inside cell collides with B for certain: B's surface
+/// crosses A's, or that whole component lies inside A, and with it the
+/// vertex a containment test looks at. Returns how many were written; none
+/// when A has no inside cells (an open A, or one too thin for a cell).
+int PointsEnclosedBy(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
+                     std::span<Vec3> out, QueryScratch* scratch);
 
 /// A triangle near a point: its index in the mesh and its distance (m).
 struct TriangleDistance {

@@ -3,6 +3,9 @@
 // sample_points). A point in an inside cell must be inside the solid: checked
 // against the analytic ball for the sphere and against PointInside (a ray
 // count, independent of the grid's rasterisation and flood fill) elsewhere.
+// The scene points a cold query tests against the probe's cells
+// (PointsEnclosedBy), and the cold queries' cull with them against an open
+// scene, which has no inside cells of its own.
 // Presets: every preset (pd_tests).
 #include "pd/interior_grid.h"
 
@@ -11,6 +14,8 @@
 #include <random>
 
 #include "pd/geometry_model.h"
+#include "pd/pdg.h"
+#include "pd/pdt.h"
 #include "pd/primitives.h"
 #include "pd/queries.h"
 #include "pd/shapes.h"
@@ -207,6 +212,88 @@ TEST(SamplePoints, SpreadOverTheSurfaceOfTheFirstComponent) {
                                  "two boxes"));
   ASSERT_FALSE(two.sample_points().empty());
   for (const Vec3& p : two.sample_points()) EXPECT_LT(p.x(), 0.1) << p.transpose();
+}
+
+TEST(PointsEnclosedBy, SceneVerticesInsideTheProbeOfTheSampledComponentOnly) {
+  const GeometryModel probe(shapes::Sphere(0.03, 3));
+  ASSERT_FALSE(probe.interior().empty());
+  // The scene: a torus (triangle 0's component) and a small box apart from
+  // it. The probe overlaps the torus's tube and holds the box wholly.
+  Mesh box = shapes::Box(Vec3::Constant(0.004));
+  std::vector<Vec3> v = box.vertices();
+  for (Vec3& p : v) p += Vec3(0.06, 0.0, 0.045);
+  const GeometryModel scene(Joined(
+      shapes::Torus(), Mesh::FromArrays(std::move(v), box.triangles(), "box"), "torus and box"));
+  QueryScratch scratch;
+  std::array<Vec3, GeometryModel::kSamplePoints> out;
+  const Pose X_BA{Mat3::Identity(), Vec3(0.06, 0.0, 0.025)};  // over the tube, and the box
+  const int n = PointsEnclosedBy(probe, X_BA, scene, out, &scratch);
+  ASSERT_GT(n, 8);
+  ASSERT_LE(n, GeometryModel::kSamplePoints);
+  const Pose X_AB = X_BA.Inverse();
+  for (int k = 0; k < n; ++k) {
+    const Vec3& p = out[static_cast<std::size_t>(k)];
+    // A vertex of the torus (|p.z| within its tube), inside the probe by
+    // the exact test.
+    EXPECT_LT(std::abs(p.z()), 0.021) << p.transpose();
+    EXPECT_TRUE(std::any_of(scene.mesh().vertices().begin(), scene.mesh().vertices().end(),
+                            [&](const Vec3& q) { return q == p; }));
+    EXPECT_TRUE(PointInside(probe, X_AB * p, &scratch)) << p.transpose();
+  }
+  // Over the box alone: its component is not the one a containment test
+  // looks at, so none of its vertices may count.
+  const Pose X_box{Mat3::Identity(), Vec3(0.06, 0.0, 0.06)};
+  EXPECT_EQ(PointsEnclosedBy(probe, X_box, scene, out, &scratch), 0);
+  // An open probe has no inside cells.
+  std::vector<Triangle> t = probe.mesh().triangles();
+  t.pop_back();
+  const GeometryModel holed(Mesh::FromArrays(probe.mesh().vertices(), std::move(t), "holed"));
+  EXPECT_EQ(PointsEnclosedBy(holed, X_BA, scene, out, &scratch), 0);
+}
+
+// A closed probe against an open scene: only the probe's cells can cull a
+// cold start, and the answers must be those of the exact start checks.
+TEST(PointsEnclosedBy, ColdQueriesAgainstAnOpenSceneKeepTheirAnswersWithFewerSweeps) {
+  const GeometryModel probe(shapes::Capsule(0.015, 0.03));
+  std::vector<Triangle> t = shapes::Torus().triangles();
+  t.erase(t.begin() + 7);  // a hole: the scene has no inside
+  const GeometryModel scene(Mesh::FromArrays(shapes::Torus().vertices(), std::move(t), "holed"));
+  ASSERT_FALSE(scene.closed());
+  ASSERT_FALSE(probe.interior().empty());
+  PenetrationRequest on;
+  on.use_coherence = false;
+  on.pdg_iteration_budget = 0;
+  PenetrationRequest off = on;
+  off.cold_interior_cull = false;
+  std::mt19937_64 rng(5);
+  std::uniform_int_distribution<std::size_t> vertex(0, scene.mesh().vertices().size() - 1);
+  std::normal_distribution<double> normal;
+  long sweeps_on = 0, sweeps_off = 0;
+  int poses = 0;
+  for (int k = 0; k < 80 && poses < 16; ++k) {
+    const Eigen::Quaterniond q =
+        Eigen::Quaterniond(normal(rng), normal(rng), normal(rng), normal(rng)).normalized();
+    const Pose X_WA{q.toRotationMatrix(), scene.mesh().vertices()[vertex(rng)]};
+    PdQueryData d_on, d_off;
+    PenetrationResult t_on, t_off;
+    ComputePdt(probe, X_WA, scene, Pose::Identity(), on, &d_on, &t_on);
+    if (t_on.status == PdStatus::kSeparated) continue;
+    ++poses;
+    ComputePdt(probe, X_WA, scene, Pose::Identity(), off, &d_off, &t_off);
+    ASSERT_EQ(t_on.status, t_off.status);
+    EXPECT_EQ(t_on.translation_W, t_off.translation_W);
+    sweeps_on += t_on.ccd_queries;
+    sweeps_off += t_off.ccd_queries;
+    PdgQueryData g_on, g_off;
+    PenetrationResult r_on, r_off;
+    ComputePdg(probe, X_WA, scene, Pose::Identity(), on, &g_on, &r_on);
+    ComputePdg(probe, X_WA, scene, Pose::Identity(), off, &g_off, &r_off);
+    ASSERT_EQ(r_on.status, r_off.status);
+    EXPECT_EQ(r_on.sigma, r_off.sigma);
+    EXPECT_EQ(r_on.X_WA_result.t, r_off.X_WA_result.t);
+  }
+  ASSERT_EQ(poses, 16);
+  EXPECT_LT(sweeps_on, 0.6 * sweeps_off) << sweeps_on << " against " << sweeps_off;
 }
 
 }  // namespace
