@@ -101,11 +101,13 @@ struct PenetrationRequest {
   /// cost of an early-out collision test each. Convex pairs start from the
   /// exact convex answer. At most kMaxColdSearchDirections.
   int cold_start_directions = kColdSearchDirections;
-  /// Cold queries against a closed scene: an escape direction of PDt's
-  /// cold search, or a PDg turn start, whose start puts one of the probe's
-  /// sample points (GeometryModel::sample_points) in a cell wholly inside
-  /// the scene (GeometryModel::interior) is dropped without the exact start
-  /// check, which would find that start colliding too. The answers are the
+  /// Cold queries: an escape direction of PDt's cold search, or a PDg turn
+  /// start, whose start puts one of the probe's sample points
+  /// (GeometryModel::sample_points) in a cell wholly inside a closed scene
+  /// (GeometryModel::interior), or leaves one of the scene's points found
+  /// inside a closed probe at the query pose (PointsEnclosedBy) in a cell
+  /// wholly inside the probe, is dropped without the exact start check,
+  /// which would find that start colliding too. The answers are the
   /// same, for a few lookups instead of a search for a crossing triangle
   /// pair; under pdg_iteration_budget a budgeted PDg answer can improve, as
   /// the dropped starts spend none of it. False runs the exact check on
