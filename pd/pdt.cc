@@ -523,18 +523,26 @@ constexpr double kColdPocketStart = 0.75;
 
 // Cold search: out-projections along request.cold_start_directions escape
 // directions and then around the best answer, each refined to its local
-// optimum as soon as it beats the best answer so far; the shallowest answer
-// wins. Once an answer is known, a direction's sweep starts just inside that
-// answer's depth instead of outside the bounding spheres: a start that
-// collides drops the direction (nothing shallower lies that way), so most
-// directions cost one early-out collision test, the sweeps that run are
-// short, and a free start there also reaches free pockets that a sweep from
-// outside never meets. A colliding start on the far side of the body from
-// the best answer gets a second start a quarter closer in: the line may
-// cross a free pocket short of the best depth and collide again beyond it.
-// With data.cold_search_bound every sweep starts at that depth. Leaves the
-// answer in *best, its features in data.best_features; false when no
-// direction reached a contact.
+// optimum; the shallowest answer wins. Once a contact is known, a
+// direction's sweep starts just inside its depth instead of outside the
+// bounding spheres: a start that collides drops the direction (nothing
+// shallower lies that way), so most directions cost one early-out collision
+// test, the sweeps that run are short, and a free start there also reaches
+// free pockets that a sweep from outside never meets. A colliding start on
+// the far side of the body from that contact gets a second start a quarter
+// closer in: the line may cross a free pocket short of its depth and collide
+// again beyond it. With data.cold_search_bound every sweep starts at that
+// depth.
+//
+// With request.cold_contacts_first (and more than one direction) the escape
+// directions are first swept for their contacts alone, and the shallowest
+// contacts are refined before the directions are swept again from just
+// inside the refined answer, each new contact refined at once: a contact
+// refined early is most often beaten by a later one, and refining the most
+// promising one first spares most of those refinements. The second sweep
+// of the directions still finds the free pockets that only a start inside
+// the refined depth reaches. Leaves the answer in *best, its features in
+// data.best_features; false when no direction reached a contact.
 bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
   PdQueryData& d = c.data;
   const std::array<Vec3, kColdStartDirections> fixed = FixedColdDirections(c, Size(c));
@@ -575,29 +583,35 @@ bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
     }
     return SweepFrom(c, x_from, Vec3::Zero(), x_out, true, true);
   };
-  for (int k = 0; k < count + local; ++k) {
-    if (k >= count && !have_best) break;
-    const Vec3 u =
-        k < count ? ColdDirection(fixed, k, count) : LocalDirection(best->normalized(), k - count);
-    Vec3 x;
-    if (std::isfinite(best_norm)) {
-      // Only a contact shallower than the best answer by the iteration's own
-      // improvement tolerance is worth a refinement.
-      const double reach = best_norm * (1 - c.request.improvement_tolerance);
-      // Most of these starts overlap (a shallower answer is rare).
-      SweepOutcome o = sweep_in_from(u * reach, &x);
-      if (o == SweepOutcome::kStartColliding && have_best &&
-          u.dot(*best) < kColdPocketCos * best_norm) {
-        // The far side of the body the best answer leaves by: its start
-        // just inside the best depth can lie past a free pocket (the probe
-        // between a bunny's ears), so one more start closer in.
-        o = sweep_in_from(u * (kColdPocketStart * reach), &x);
-      }
-      if (o != SweepOutcome::kHit) continue;
-      d.cold_answer_features.swap(d.best_features);  // keep the best answer's
-    } else if (!Sweep(c, OutsideAlong(c, u), Vec3::Zero(), &x)) {
-      continue;
+  // The contact along escape direction u, swept from just inside depth
+  // `bound` (from outside the bounding spheres while it is infinite); a
+  // colliding start on the far side of the body from contact `*near` gets
+  // a second start closer in. Leaves the start used in *start.
+  auto contact_along = [&](const Vec3& u, double bound, const Vec3* near, Vec3* start, Vec3* x) {
+    if (!std::isfinite(bound)) {
+      *start = OutsideAlong(c, u);
+      return Sweep(c, *start, Vec3::Zero(), x);
     }
+    // Only a contact shallower than the bound by the iteration's own
+    // improvement tolerance is worth a refinement.
+    const double reach = bound * (1 - c.request.improvement_tolerance);
+    *start = u * reach;
+    // Most of these starts overlap (a shallower contact is rare).
+    SweepOutcome o = sweep_in_from(*start, x);
+    if (o == SweepOutcome::kStartColliding && near != nullptr &&
+        u.dot(*near) < kColdPocketCos * bound) {
+      // The far side of the body the contact leaves by: its start just
+      // inside that depth can lie past a free pocket (the probe between a
+      // bunny's ears), so one more start closer in.
+      *start = u * (kColdPocketStart * reach);
+      o = sweep_in_from(*start, x);
+    }
+    return o == SweepOutcome::kHit;
+  };
+  // Refines the contact x a sweep has just reached (its features in
+  // data.ccd) and keeps it when it beats the best answer.
+  auto refine_contact = [&](Vec3 x) {
+    d.cold_answer_features.swap(d.best_features);  // keep the best answer's
     d.best_features = d.ccd.features;
     d.cold_contact_features = d.ccd.features;
     const Vec3 x_contact = x;
@@ -621,6 +635,37 @@ bool ColdSearch(PdtContext& c, Vec3* best, PdStatus* status, int* iterations) {
     } else {
       d.best_features.swap(d.cold_answer_features);  // back to the best answer's
     }
+  };
+  if (c.request.cold_contacts_first && count > 1) {
+    // Each contact found lies inside the one before (its start does), so
+    // they come shallowest last.
+    d.cold_contacts.clear();
+    double bound = best_norm;
+    for (int k = 0; k < count; ++k) {
+      Vec3 start, x;
+      if (!contact_along(ColdDirection(fixed, k, count), bound,
+                         d.cold_contacts.empty() ? nullptr : &d.cold_contacts.back().x, &start,
+                         &x)) {
+        continue;
+      }
+      d.cold_contacts.push_back({start, x});
+      bound = x.norm();
+    }
+    // Shallowest first, while a contact can still beat the refined answer.
+    for (auto it = d.cold_contacts.rbegin(); it != d.cold_contacts.rend(); ++it) {
+      if (it->x.norm() >= best_norm * (1 - c.request.improvement_tolerance)) break;
+      Vec3 x;
+      // The same sweep again (its start is known to be free), for the
+      // contact's features.
+      if (Sweep(c, it->start, Vec3::Zero(), &x)) refine_contact(x);
+    }
+  }
+  for (int k = 0; k < count + local; ++k) {
+    if (k >= count && !have_best) break;
+    const Vec3 u =
+        k < count ? ColdDirection(fixed, k, count) : LocalDirection(best->normalized(), k - count);
+    Vec3 start, x;
+    if (contact_along(u, best_norm, have_best ? best : nullptr, &start, &x)) refine_contact(x);
   }
   return have_best;
 }

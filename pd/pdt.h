@@ -71,6 +71,14 @@ class PdQueryData {
   std::vector<FeaturePair> cold_answer_features;
   /// Cold search: the features of the contact being refined, as swept.
   std::vector<FeaturePair> cold_contact_features;
+  /// Cold search, request.cold_contacts_first: the escape directions'
+  /// contacts (offsets in B's frame) and the free starts they were swept
+  /// from, deepest first.
+  struct ColdContact {
+    Vec3 start;
+    Vec3 x;
+  };
+  std::vector<ColdContact> cold_contacts;
   /// Cold search: only answers shallower than this (m) are wanted; every
   /// direction's sweep starts at this depth (a colliding start drops the
   /// direction) instead of outside the bounding spheres. PDg sets it to the

@@ -113,6 +113,14 @@ struct PenetrationRequest {
   /// the dropped starts spend none of it. False runs the exact check on
   /// every start (to compare the two).
   bool cold_interior_cull = true;
+  /// Cold PDt search with more than one escape direction: sweep every
+  /// direction for its contact first and refine the shallowest contacts,
+  /// then sweep the directions again from just inside the refined answer,
+  /// refining each new contact at once. False refines every contact that
+  /// beats the best answer as soon as it is found (most of those
+  /// refinements are beaten later): the answers are about as good, for more
+  /// work (to compare the two).
+  bool cold_contacts_first = true;
   /// PDg only: run PDt on every query and start from the better of its answer
   /// and the motion-coherent start (default: PDt only when coherence gives no
   /// start, or a start much deeper than the cached answer it came from: more
