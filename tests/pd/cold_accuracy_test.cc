@@ -11,7 +11,8 @@
 // directions only (the weaker PDt search, which fails the default PDt
 // thresholds); and without PDg's turn starts (which fails the default PDg
 // thresholds: the test checks that it does). The interior cull is checked
-// against the exact start check it replaces.
+// against the exact start check it replaces, and refining the shallowest
+// contacts first against refining every contact as it is found.
 // Presets: every preset (pd_tests).
 #include <gtest/gtest.h>
 
