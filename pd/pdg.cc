@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <span>
 #include <string>
 #include <utility>
 
@@ -295,6 +296,9 @@ struct PdgContext {
   // run, or coherence off). A coherent run whose cached poses all collide
   // now is not: its frames keep their time for the servo rate.
   bool cold;
+  // Iteration cap of each run of the iteration: pdg_cold_max_iterations on
+  // a cold query without a work budget, else max_iterations.
+  int max_iterations;
 };
 
 double Sigma(const PdgContext& c, const Vec6& z) { return z.cwiseProduct(z).dot(c.metric); }
@@ -571,16 +575,9 @@ void ClassifyAlongMotion(const PdgContext& c, const Best& best,
   }
 }
 
-// Does A collide at X, a pose within `reach` (a bound on any point's
-// displacement) of the contact `best`? Every triangle pair within eps at
-// best is in data.best_pairs (when best.near_pairs), so for reach < eps only
-// those pairs can cross at X (and a motion that short cannot enclose one
-// mesh in the other without crossing): they are tested alone instead of a
-// full Collide, which at a free pose near contact has to visit every
-// nearby box pair.
-bool CollidingNear(PdgContext& c, const Best& best, const Pose& X, double reach) {
-  if (!best.near_pairs || !(reach < 0.5 * c.eps)) return Colliding(c, X);
-  const Pose& X_BA = X;
+// Whether one of the triangle pairs in data.best_pairs crosses with A at X.
+// True means A collides at X; false decides nothing unless X is near best.
+bool CrossesNearPair(PdgContext& c, const Pose& X_BA) {
   const Mesh& ma = c.A.mesh();
   const Mesh& mb = c.B.mesh();
   Index fa_last = -1;
@@ -597,6 +594,18 @@ bool CollidingNear(PdgContext& c, const Best& best, const Pose& X, double reach)
     }
   }
   return false;
+}
+
+// Does A collide at X, a pose within `reach` (a bound on any point's
+// displacement) of the contact `best`? Every triangle pair within eps at
+// best is in data.best_pairs (when best.near_pairs), so for reach < eps only
+// those pairs can cross at X (and a motion that short cannot enclose one
+// mesh in the other without crossing): they are tested alone instead of a
+// full Collide, which at a free pose near contact has to visit every
+// nearby box pair.
+bool CollidingNear(PdgContext& c, const Best& best, const Pose& X, double reach) {
+  if (!best.near_pairs || !(reach < 0.5 * c.eps)) return Colliding(c, X);
+  return CrossesNearPair(c, X);
 }
 
 bool Polish(PdgContext& c, Best* best) {
@@ -736,7 +745,7 @@ PdStatus IterateContactSpace(PdgContext& c, Best* best, int* iterations, WorkBud
   Vec6 z_extra = Vec6::Zero();
   int retries = 0;
   const int first = *iterations;
-  for (int it = 0; it < c.request.max_iterations; ++it) {
+  for (int it = 0; it < c.max_iterations; ++it) {
     if (!MayIterate(c, budget)) break;  // the next iteration would likely overrun: cap reached
     *iterations = first + it + 1;
     if (best->sigma <= 0) {
@@ -825,16 +834,17 @@ bool StartEnclosed(const PdgContext& c, const Pose& X, std::span<const Vec3> enc
   return false;
 }
 
-PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budget,
-                    PdStatus status) {
+// `enclosed`: the scene's points inside a closed probe at the query pose
+// (PointsEnclosedBy). With `iterate_each` the iteration goes on from every
+// free candidate at once (within the work budget); without, the free
+// candidates only lower *best and the caller iterates once from it.
+// *accepted counts the free candidates.
+PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budget, PdStatus status,
+                    std::span<const Vec3> enclosed, bool iterate_each, int* accepted) {
   // A turn of at most about 29 degrees (|v| = sin(theta / 2)): the
   // linearised contact space is far from right beyond.
   constexpr double kMaxV = 0.25;
   int tried = 0;
-  std::array<Vec3, GeometryModel::kSamplePoints> enclosed;
-  const int enclosed_count = c.request.cold_interior_cull && c.request.pdg_cold_turn_starts > 0
-                                 ? PointsEnclosedBy(c.A, c.X_BA, c.B, enclosed, &c.data.scratch)
-                                 : 0;
   for (const double fraction : kTurnFractions) {
     for (int k = 0; k < kTurnAxes; ++k) {
       if (tried++ >= c.request.pdg_cold_turn_starts) return status;
@@ -850,15 +860,106 @@ PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budg
         z.tail<3>() = t.normalized() * std::sqrt(std::max(0.0, sigma0 - weight * v * v));
       }
       const Pose X_start = At(c, z);
-      if (StartEnclosed(c, X_start, std::span(enclosed.data(), enclosed_count))) continue;
+      if (StartEnclosed(c, X_start, enclosed)) continue;
       Pose X_contact;
       if (OutProjectFrom(c, X_start, &X_contact) != Sweep::kHit) continue;
       if (Sigma(c, Z(c, X_contact)) >= best->sigma) continue;
       AcceptSwept(c, X_contact, best);
-      status = IterateContactSpace(c, best, iterations, budget);
+      ++*accepted;
+      if (iterate_each) status = IterateContactSpace(c, best, iterations, budget);
     }
   }
   return status;
+}
+
+// Cold PDg without a work budget: a local search around the best answer.
+// The iteration stops where the linearised contact space at the best
+// contact admits no lower sigma, but the true contact space curves, and
+// nearby poses at a slightly lower sigma are often free (on the cold
+// benchmark's poses the answer was then 1-20 % above the sampled bound).
+// Each candidate turns the best answer's rotation by a random vector of up
+// to `scale` times kLocalTurn (in z's rotation part, sin(theta / 2)), tilts
+// its translation direction by a random vector of about `scale` times
+// kLocalTilt, and puts the probe on the level set at 0.999 of the best
+// sigma; a free candidate is out-projected towards the query pose, so it
+// beats the best answer. The scale grows after a free candidate and shrinks
+// after one that collides (a (1+1) evolution strategy), and the search ends
+// when it falls below kLocalEnd or after pdg_cold_local_search candidates.
+// The generator's seed is fixed: the same query gives the same answer.
+constexpr double kLocalTurn = 0.025;  // about 2.9 degrees at scale 1
+constexpr double kLocalTilt = 0.03;   // rad, about, at scale 1
+constexpr double kLocalGrow = 1.5;
+constexpr double kLocalShrink = 0.85;
+constexpr double kLocalEnd = 0.1;
+constexpr double kLocalMaxScale = 10;
+
+// SplitMix64 with Box-Muller normals: the same sequence with every standard
+// library.
+class LocalRandom {
+ public:
+  double Uniform() { return static_cast<double>(Next() >> 11) * 0x1.0p-53; }
+  double Normal() {
+    if (have_spare_) {
+      have_spare_ = false;
+      return spare_;
+    }
+    const double u1 = 1.0 - Uniform();  // (0, 1]
+    const double u2 = Uniform();
+    const double r = std::sqrt(-2 * std::log(u1));
+    spare_ = r * std::sin(2 * kPi * u2);
+    have_spare_ = true;
+    return r * std::cos(2 * kPi * u2);
+  }
+  Vec3 Normal3() {
+    const double x = Normal(), y = Normal();
+    return Vec3(x, y, Normal());
+  }
+
+ private:
+  static constexpr double kPi = 3.14159265358979323846;
+  std::uint64_t Next() {
+    std::uint64_t z = (state_ += 0x9e3779b97f4a7c15ULL);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+    return z ^ (z >> 31);
+  }
+  std::uint64_t state_ = 0x5eed;
+  double spare_ = 0;
+  bool have_spare_ = false;
+};
+
+// Returns how many candidates were free (each lowered *best).
+int LocalSearch(PdgContext& c, Best* best, std::span<const Vec3> enclosed) {
+  LocalRandom rng;
+  double scale = 1;
+  int accepted = 0;
+  for (int k = 0; k < c.request.pdg_cold_local_search && scale >= kLocalEnd; ++k) {
+    const double sigma0 = best->sigma * (1 - 1e-3);
+    const Vec3 turn = rng.Normal3().normalized() * (kLocalTurn * scale * rng.Uniform());
+    const Vec3 tilt = rng.Normal3() * (kLocalTilt * scale);
+    const double s = scale;
+    scale *= kLocalShrink;  // undone below when the candidate is free
+    Vec6 z = Vec6::Zero();
+    z.head<3>() = best->z.head<3>() + turn;
+    if (!(z.head<3>().norm() < 0.7)) continue;  // stay well inside the chart
+    const double sigma_turn = Sigma(c, z);
+    if (!(sigma_turn < sigma0)) continue;
+    const Vec3 t = best->z.tail<3>();
+    if (!(t.norm() > 0)) continue;
+    z.tail<3>() = (t.normalized() + tilt).normalized() * std::sqrt(sigma0 - sigma_turn);
+    const Pose X_start = At(c, z);
+    if (StartEnclosed(c, X_start, enclosed)) continue;
+    // A candidate near the best contact mostly collides through one of its
+    // triangle pairs: those are tried before the full start check.
+    if (best->near_pairs && CrossesNearPair(c, X_start)) continue;
+    Pose X_contact;
+    if (OutProjectFrom(c, X_start, &X_contact) != Sweep::kHit) continue;
+    if (!(Sigma(c, Z(c, X_contact)) < best->sigma)) continue;
+    AcceptSwept(c, X_contact, best);
+    ++accepted;
+    scale = std::min(kLocalMaxScale, s * kLocalGrow);
+  }
+  return accepted;
 }
 
 // The answer `best` into *result (in the frame PdgCore works in).
@@ -896,7 +997,11 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
                PdgMetricDiagonal(A.mass(), request),
                R_BAb0,
                X_BA * A.mass().p_MC,
-               !request.use_coherence || data->coherence_size() == 0};
+               !request.use_coherence || data->coherence_size() == 0,
+               request.max_iterations};
+  if (c.cold && request.pdg_iteration_budget == 0) {
+    c.max_iterations = std::max(request.max_iterations, request.pdg_cold_max_iterations);
+  }
   auto finish = [&](PdStatus status) {
     result->status = status;
     result->time_us = std::chrono::duration<double, std::micro>(Clock::now() - t0).count();
@@ -979,7 +1084,25 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
   budget.limit = request.pdg_iteration_budget;
   PdStatus status = IterateContactSpace(c, &best, &result->iterations, &budget);
   if (c.cold && status != PdStatus::kPenetratingCapReached) {
-    status = TurnStarts(c, &best, &result->iterations, &budget, status);
+    // With a work budget (the first frame of a run) the iteration goes on
+    // from each free turn start at once, within the budget. Without (a
+    // one-shot query) the turn starts and then the local search only lower
+    // the best contact, and the iteration goes on once from the lowest.
+    const bool unbudgeted = budget.limit == 0;
+    std::array<Vec3, GeometryModel::kSamplePoints> enclosed;
+    const int enclosed_count =
+        request.cold_interior_cull && (request.pdg_cold_turn_starts > 0 ||
+                                       (unbudgeted && request.pdg_cold_local_search > 0))
+            ? PointsEnclosedBy(A, X_BA, B, enclosed, &data->scratch)
+            : 0;
+    const std::span<const Vec3> inside(enclosed.data(), enclosed_count);
+    int found = 0;
+    status =
+        TurnStarts(c, &best, &result->iterations, &budget, status, inside, !unbudgeted, &found);
+    if (unbudgeted) {
+      found += LocalSearch(c, &best, inside);
+      if (found > 0) status = IterateContactSpace(c, &best, &result->iterations, &budget);
+    }
   }
   // The periodic check against PDt (pdg_pdt_check_period): once due, it runs
   // after the iteration of the first query that has spent little work (a

@@ -149,6 +149,24 @@ struct PenetrationRequest {
   /// PDt's translation does not. Most cost one early-out collision test.
   /// They count against pdg_iteration_budget.
   int pdg_cold_turn_starts = kPdgColdTurnStarts;
+  /// PDg only, cold queries without a work budget (pdg_iteration_budget 0,
+  /// as one-shot queries run): after the turn starts, at most this many
+  /// candidates of a local search around the best answer; 0: none. The
+  /// iteration stops where the linearised contact space at the best contact
+  /// admits no lower sigma, but the true one curves, and a pose a little
+  /// turned and tilted from the best at a slightly lower sigma is often
+  /// free. Each candidate costs about one early-out collision test; the
+  /// search shrinks its steps after each colliding candidate and ends when
+  /// they are small (typically after a few dozen). The turn starts' and the
+  /// search's free candidates only lower the best contact, and the
+  /// iteration goes on once from the lowest. The answers are
+  /// deterministic.
+  int pdg_cold_local_search = 200;
+  /// PDg only, cold queries without a work budget: the iteration cap of
+  /// each run of the iteration (max_iterations, if larger, instead). A deep
+  /// cold query can gain a fraction of a percent of sigma per iteration for
+  /// dozens of iterations; with a budget, the budget decides.
+  int pdg_cold_max_iterations = 48;
   /// PDg only: the probe's principal moments of inertia about its centre of
   /// mass divided by its mass (m^2), along the body frame's axes
   /// (MassProperties::X_MB), e.g. (I, I, I) / m for an isotropic override of

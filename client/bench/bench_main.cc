@@ -83,6 +83,7 @@ struct ColdCmdOptions {
   std::string poses_from;
   int cold_directions = pd::PenetrationRequest{}.cold_start_directions;
   int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts;
+  int local_search = pd::PenetrationRequest{}.pdg_cold_local_search;
   bool no_interior_cull = false;
   int poses = 16;
   std::uint64_t seed = 1;
@@ -97,6 +98,7 @@ void RunColdCmd(const ColdCmdOptions& o) {
   c.poses_from = o.poses_from;
   c.cold_directions = o.cold_directions;
   c.turn_starts = o.turn_starts;
+  c.local_search = o.local_search;
   c.interior_cull = !o.no_interior_cull;
   MakeOutputFolder("cold", "--out", o.out);
   const std::filesystem::path out(o.out);
@@ -114,6 +116,7 @@ void RunColdCmd(const ColdCmdOptions& o) {
   if (!o.poses_from.empty()) command += " --poses-from " + o.poses_from;
   command += " --cold-directions " + std::to_string(o.cold_directions);
   command += " --turn-starts " + std::to_string(o.turn_starts);
+  command += " --local-search " + std::to_string(o.local_search);
   if (o.no_interior_cull) command += " --no-interior-cull";
   const std::string date = UtcNow();
   const std::filesystem::path svg = out / "cold.svg";
@@ -216,6 +219,11 @@ void RegisterOracleBenches(CLI::App& app) {
                     "Turn starts of each cold PDg query (PenetrationRequest::pdg_cold_turn_starts: "
                     "0 none)")
         ->check(CLI::Range(0, pd::kPdgColdTurnStarts))
+        ->capture_default_str();
+    cmd->add_option("--local-search", o->local_search,
+                    "Candidates of the local search of each unbudgeted cold PDg query "
+                    "(PenetrationRequest::pdg_cold_local_search: 0 none)")
+        ->check(CLI::Range(0, 10000))
         ->capture_default_str();
     cmd->add_flag("--no-interior-cull", o->no_interior_cull,
                   "Run the exact start check on every escape direction and turn start "

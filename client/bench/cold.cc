@@ -299,7 +299,8 @@ double ReferenceFreeWidth(ColdVerifier& verify, const ColdPose& p) {
 
 std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
                                        const std::vector<ColdPose>& poses, bool diagnose,
-                                       int cold_directions, int turn_starts, bool interior_cull) {
+                                       int cold_directions, int turn_starts, bool interior_cull,
+                                       int local_search) {
   std::vector<ColdAnswer> out;
   std::map<std::string, const ColdPair*> by_name;
   for (const ColdPair& p : pairs) by_name[p.name] = &p;
@@ -309,6 +310,7 @@ std::vector<ColdAnswer> RunColdQueries(const std::vector<ColdPair>& pairs,
   cold.cold_start_directions = cold_directions;
   cold.pdg_cold_turn_starts = turn_starts;
   cold.cold_interior_cull = interior_cull;
+  cold.pdg_cold_local_search = local_search;
   pd::PenetrationRequest cold_unbudgeted = cold;
   cold_unbudgeted.pdg_iteration_budget = 0;
   pd::PdQueryData pdt_data;
@@ -429,11 +431,13 @@ ColdReport RunCold(const ColdOptions& o, std::ostream* log) {
     }
     report.notes.push_back("poses and references read from " + o.poses_from);
   }
-  report.answers =
-      RunColdQueries(pairs, report.poses, true, o.cold_directions, o.turn_starts, o.interior_cull);
+  report.answers = RunColdQueries(pairs, report.poses, true, o.cold_directions, o.turn_starts,
+                                  o.interior_cull, o.local_search);
   report.notes.push_back(
       fmt::format("cold search escape directions per query: {}", o.cold_directions));
   report.notes.push_back(fmt::format("PDg turn starts per cold query: {}", o.turn_starts));
+  report.notes.push_back(
+      fmt::format("PDg local search candidates per unbudgeted cold query: {}", o.local_search));
   report.notes.push_back(fmt::format("interior cull of escape directions and turn starts: {}",
                                      o.interior_cull ? "on" : "off"));
   report.summary = SummarizeCold(report.answers);

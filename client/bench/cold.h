@@ -86,6 +86,8 @@ struct ColdOptions {
   int cold_directions = pd::PenetrationRequest{}.cold_start_directions;
   /// PenetrationRequest::pdg_cold_turn_starts of every PDg query.
   int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts;
+  /// PenetrationRequest::pdg_cold_local_search of every PDg query.
+  int local_search = pd::PenetrationRequest{}.pdg_cold_local_search;
   /// PenetrationRequest::cold_interior_cull of every query.
   bool interior_cull = pd::PenetrationRequest{}.cold_interior_cull;
 };
@@ -159,13 +161,16 @@ struct ColdAnswer {
 /// data, coherence off, with `cold_directions` escape directions
 /// (PenetrationRequest::cold_start_directions) and `turn_starts` PDg turn
 /// starts (PenetrationRequest::pdg_cold_turn_starts), the interior cull as
-/// `interior_cull` (PenetrationRequest::cold_interior_cull); time is the
-/// wall clock of the call.
+/// `interior_cull` (PenetrationRequest::cold_interior_cull), `local_search`
+/// candidates of unbudgeted PDg's local search
+/// (PenetrationRequest::pdg_cold_local_search); time is the wall clock of
+/// the call.
 std::vector<ColdAnswer> RunColdQueries(
     const std::vector<ColdPair>& pairs, const std::vector<ColdPose>& poses, bool diagnose,
     int cold_directions = pd::PenetrationRequest{}.cold_start_directions,
     int turn_starts = pd::PenetrationRequest{}.pdg_cold_turn_starts,
-    bool interior_cull = pd::PenetrationRequest{}.cold_interior_cull);
+    bool interior_cull = pd::PenetrationRequest{}.cold_interior_cull,
+    int local_search = pd::PenetrationRequest{}.pdg_cold_local_search);
 
 struct ColdSummary {
   ColdKind kind = ColdKind::kPdt;
