@@ -175,6 +175,7 @@ PdInputs ParsePdInputs(const PdOptions& o) {
   if (!o.epsilon.empty()) request.contact_epsilon = ParsePositive("--epsilon", o.epsilon);
   if (!o.max_iterations.empty()) {
     request.max_iterations = ParsePositiveInt("--max-iterations", o.max_iterations);
+    request.pdg_cold_max_iterations = request.max_iterations;
   }
   // A one-shot query has no next query to carry a budgeted optimisation on:
   // no budget unless asked for.
@@ -402,7 +403,8 @@ void RegisterPd(CLI::App& app) {
                   "Contact tolerance as a fraction of the smaller body's size (default 1e-4)")
       ->type_name("E");
   cmd->add_option("--max-iterations", opts->max_iterations,
-                  "Cap on projection iterations per body (default 12)")
+                  "Cap on projection iterations per body (default 12; PDg without "
+                  "--pdg-budget 48)")
       ->type_name("N");
   cmd->add_option("--cold-directions", opts->cold_directions,
                   "Escape directions of the cold search (1 to " +

@@ -1000,7 +1000,7 @@ void PdgCore(const GeometryModel& A, const Pose& X_BA, const GeometryModel& B,
                !request.use_coherence || data->coherence_size() == 0,
                request.max_iterations};
   if (c.cold && request.pdg_iteration_budget == 0) {
-    c.max_iterations = std::max(request.max_iterations, request.pdg_cold_max_iterations);
+    c.max_iterations = request.pdg_cold_max_iterations;
   }
   auto finish = [&](PdStatus status) {
     result->status = status;

@@ -163,7 +163,7 @@ struct PenetrationRequest {
   /// deterministic.
   int pdg_cold_local_search = 200;
   /// PDg only, cold queries without a work budget: the iteration cap of
-  /// each run of the iteration (max_iterations, if larger, instead). A deep
+  /// each run of the iteration, instead of max_iterations. A deep
   /// cold query can gain a fraction of a percent of sigma per iteration for
   /// dozens of iterations; with a budget, the budget decides.
   int pdg_cold_max_iterations = 48;

@@ -276,6 +276,9 @@ def run_cold_directions(r):
     r.run([r.exe("hapticpd-bench"), "cold", "--poses-from", str(poses), "--no-interior-cull",
            "--out", str(r.out), "--json"], "nocull.json",
           f"{B}/hapticpd-bench cold --poses-from cold16.json --no-interior-cull --json")
+    r.run([r.exe("hapticpd-bench"), "cold", "--poses-from", str(poses), "--local-search", "0",
+           "--out", str(r.out), "--json"], "nolocal.json",
+          f"{B}/hapticpd-bench cold --poses-from cold16.json --local-search 0 --json")
 
 
 def run_cold_stored(r):
@@ -830,6 +833,7 @@ def render_cold_directions(root):
             for n in COLD_DIRECTIONS]
     runs.append(("141, no PDg turn starts", "turnless.json"))
     runs.append(("141, no interior cull", "nocull.json"))
+    runs.append(("141, no PDg local search", "nolocal.json"))
     for label, name in runs:
         p = d / name
         if not p.is_file():
@@ -838,7 +842,7 @@ def render_cold_directions(root):
         t, g = s["pdt"], s["pdg"]
         body.append([label, t["above_1_01"],
                      t["above_1_10"], f"{t['ratio_max']:.2f}", num(t["p50_us"]), num(t["p99_us"]),
-                     g["above_1_01"], g["above_1_10"], num(g["p50_us"])])
+                     g["above_1_01"], g["above_1_10"], num(g["p50_us"]), num(g["p99_us"])])
     note = []
     main, again = root / "cold" / "cold.json", d / "directions141.json"
     if main.is_file() and again.is_file():
@@ -853,9 +857,10 @@ def render_cold_directions(root):
         conditions(d, "the poses and references of the run above",
                    f"`{B}/hapticpd-bench cold --poses-from cold16.json --cold-directions N "
                    f"--json` for N = {', '.join(str(n) for n in COLD_DIRECTIONS)}, "
-                   f"`--turn-starts 0` and `--no-interior-cull`"), "",
+                   f"`--turn-starts 0`, `--no-interior-cull` and `--local-search 0`"), "",
         table(["escape directions", "PDt > 1.01", "PDt > 1.10", "PDt max", "PDt p50 µs",
-               "PDt p99 µs", "PDg > 1.01", "PDg > 1.10", "PDg p50 µs"], body)] + note)
+               "PDt p99 µs", "PDg > 1.01", "PDg > 1.10", "PDg p50 µs", "PDg p99 µs"], body)]
+        + note)
 
 
 def render_cold_stored(root):
@@ -1008,17 +1013,19 @@ def render_goals(root):
         s2 = cold_summaries(again) if both else s
         t2, g2 = s2["pdt"], s2["pdg"]
         tp50, tp99 = max(t["p50_us"], t2["p50_us"]), max(t["p99_us"], t2["p99_us"])
-        gp50 = max(g["p50_us"], g2["p50_us"])
+        gp50, gp99 = max(g["p50_us"], g2["p50_us"]), max(g["p99_us"], g2["p99_us"])
         rows.append(["cold PDt p50 ≤ 1 ms, p99 ≤ 3 ms",
                      f"{num(t['p50_us'])} / {num(t['p99_us'])} µs"
                      + (f" ({num(t2['p50_us'])} / {num(t2['p99_us'])} from the stored poses)"
                         if both else ""),
                      "[Cold queries](#cold-queries)",
                      met(tp50 <= 1000 and tp99 <= 3000)])
-        rows.append(["cold PDg: ≥ 95 % within 1 %, p50 ≤ 2 ms",
-                     f"{100 * gw:.1f} %, {num(g['p50_us'])} µs"
-                     + (f" ({num(g2['p50_us'])} from the stored poses)" if both else ""),
-                     "[Cold queries](#cold-queries)", met(gw >= 0.95 and gp50 <= 2000)])
+        rows.append(["cold PDg: ≥ 95 % within 1 %, p50 ≤ 2 ms, p99 ≤ 5 ms",
+                     f"{100 * gw:.1f} %, {num(g['p50_us'])} / {num(g['p99_us'])} µs"
+                     + (f" ({num(g2['p50_us'])} / {num(g2['p99_us'])} from the stored poses)"
+                        if both else ""),
+                     "[Cold queries](#cold-queries)",
+                     met(gw >= 0.95 and gp50 <= 2000 and gp99 <= 5000)])
     loads = sorted(float(read_json(m)["load_average"].split()[0])
                    for m in root.glob("*/meta.json"))
     span = f"{loads[0]:.2f}–{loads[-1]:.2f}" if loads else "?"
