@@ -890,7 +890,7 @@ constexpr double kLocalTurn = 0.025;  // about 2.9 degrees at scale 1
 constexpr double kLocalTilt = 0.03;   // rad, about, at scale 1
 constexpr double kLocalGrow = 1.5;
 constexpr double kLocalShrink = 0.85;
-constexpr double kLocalEnd = 0.1;
+constexpr double kLocalEnd = 0.2;
 constexpr double kLocalMaxScale = 10;
 
 // SplitMix64 with Box-Muller normals: the same sequence with every standard

@@ -46,7 +46,7 @@ constexpr ColdThresholds kColdPdgBudget{1.001, 1.14, 20.4, 11, 3};
 // the thresholds above: PDt p95 1.0025, max 1.38, 2 above 1.01, 1 above 1.10.
 constexpr int kFixedDirections = pd::kColdStartDirections;
 constexpr ColdThresholds kFixedPdt{1.001, 1.003, 1.38, 2, 1};
-constexpr ColdThresholds kFixedPdg{1.001, 1.004, 20.5, 2, 2};
+constexpr ColdThresholds kFixedPdg{1.001, 1.004, 20.8, 2, 2};
 constexpr ColdThresholds kFixedPdgBudget{1.001, 1.14, 20.9, 12, 3};
 
 class ColdAccuracy : public ::testing::Test {
