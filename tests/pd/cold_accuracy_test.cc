@@ -38,15 +38,17 @@ struct ColdThresholds {
 };
 
 // What the cold search meets today on the 42 stored poses (measured values
-// with the ratios rounded up): lower these as it improves.
+// with the ratios rounded up): lower these as it improves. Unbudgeted PDg's
+// p95 differs between builds (the local search's path follows the last bits
+// of floating point): 1.0030 in release, 1.0049 under ASan.
 constexpr ColdThresholds kColdPdt{1.001, 1.001, 1.03, 1, 0};
-constexpr ColdThresholds kColdPdg{1.001, 1.004, 20.3, 2, 1};
+constexpr ColdThresholds kColdPdg{1.001, 1.006, 20.3, 2, 1};
 constexpr ColdThresholds kColdPdgBudget{1.001, 1.14, 20.4, 11, 3};
 // With the 13 fixed escape directions only (no sphere lattice). These fail
 // the thresholds above: PDt p95 1.0025, max 1.38, 2 above 1.01, 1 above 1.10.
 constexpr int kFixedDirections = pd::kColdStartDirections;
 constexpr ColdThresholds kFixedPdt{1.001, 1.003, 1.38, 2, 1};
-constexpr ColdThresholds kFixedPdg{1.001, 1.004, 20.8, 2, 2};
+constexpr ColdThresholds kFixedPdg{1.001, 1.006, 20.8, 2, 2};
 constexpr ColdThresholds kFixedPdgBudget{1.001, 1.14, 20.9, 12, 3};
 
 class ColdAccuracy : public ::testing::Test {
