@@ -834,6 +834,22 @@ bool StartEnclosed(const PdgContext& c, const Pose& X, std::span<const Vec3> enc
   return false;
 }
 
+// A cold start at X_start (not known to be free) out-projected towards the
+// query pose; true when that gave a contact below *best, which is then
+// accepted. Dropped before the exact start check where the interior cull
+// (StartEnclosed, with `enclosed`) decides it collides, or, with
+// `near_pairs_first`, where one of best's near triangle pairs crosses.
+bool AcceptStart(PdgContext& c, Best* best, const Pose& X_start, std::span<const Vec3> enclosed,
+                 bool near_pairs_first) {
+  if (StartEnclosed(c, X_start, enclosed)) return false;
+  if (near_pairs_first && best->near_pairs && CrossesNearPair(c, X_start)) return false;
+  Pose X_contact;
+  if (OutProjectFrom(c, X_start, &X_contact) != Sweep::kHit) return false;
+  if (!(Sigma(c, Z(c, X_contact)) < best->sigma)) return false;
+  AcceptSwept(c, X_contact, best);
+  return true;
+}
+
 // `enclosed`: the scene's points inside a closed probe at the query pose
 // (PointsEnclosedBy). With `iterate_each` the iteration goes on from every
 // free candidate at once (within the work budget); without, the free
@@ -859,12 +875,7 @@ PdStatus TurnStarts(PdgContext& c, Best* best, int* iterations, WorkBudget* budg
       if (t.norm() > 0) {
         z.tail<3>() = t.normalized() * std::sqrt(std::max(0.0, sigma0 - weight * v * v));
       }
-      const Pose X_start = At(c, z);
-      if (StartEnclosed(c, X_start, enclosed)) continue;
-      Pose X_contact;
-      if (OutProjectFrom(c, X_start, &X_contact) != Sweep::kHit) continue;
-      if (Sigma(c, Z(c, X_contact)) >= best->sigma) continue;
-      AcceptSwept(c, X_contact, best);
+      if (!AcceptStart(c, best, At(c, z), enclosed, false)) continue;
       ++*accepted;
       if (iterate_each) status = IterateContactSpace(c, best, iterations, budget);
     }
@@ -947,15 +958,9 @@ int LocalSearch(PdgContext& c, Best* best, std::span<const Vec3> enclosed) {
     const Vec3 t = best->z.tail<3>();
     if (!(t.norm() > 0)) continue;
     z.tail<3>() = (t.normalized() + tilt).normalized() * std::sqrt(sigma0 - sigma_turn);
-    const Pose X_start = At(c, z);
-    if (StartEnclosed(c, X_start, enclosed)) continue;
     // A candidate near the best contact mostly collides through one of its
     // triangle pairs: those are tried before the full start check.
-    if (best->near_pairs && CrossesNearPair(c, X_start)) continue;
-    Pose X_contact;
-    if (OutProjectFrom(c, X_start, &X_contact) != Sweep::kHit) continue;
-    if (!(Sigma(c, Z(c, X_contact)) < best->sigma)) continue;
-    AcceptSwept(c, X_contact, best);
+    if (!AcceptStart(c, best, At(c, z), enclosed, true)) continue;
     ++accepted;
     scale = std::min(kLocalMaxScale, s * kLocalGrow);
   }

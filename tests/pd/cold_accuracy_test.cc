@@ -18,9 +18,11 @@
 // Presets: every preset (pd_tests).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdio>
 #include <fstream>
 #include <map>
+#include <stdexcept>
 #include <string>
 #include <tuple>
 #include <utility>
@@ -111,6 +113,14 @@ class ColdAccuracy : public ::testing::Test {
     }
   }
 
+  /// The pair a stored pose belongs to.
+  static const ColdPair& PairOf(const ColdPose& pose) {
+    const auto it = std::find_if(pairs_->begin(), pairs_->end(),
+                                 [&](const ColdPair& p) { return p.name == pose.pair; });
+    if (it == pairs_->end()) throw std::out_of_range("no pair " + pose.pair);
+    return *it;
+  }
+
   static std::vector<ColdPose>* poses_;
   static std::vector<ColdPair>* pairs_;
   static std::map<std::tuple<int, int, int>, std::vector<ColdAnswer>*> answers_;
@@ -174,31 +184,6 @@ TEST_F(ColdAccuracy, PdgWithoutLocalSearchMissesTheThresholds) {
   }
 }
 
-// The local search's generator has a fixed seed: a cold query asked twice,
-// each time on fresh query data, gives the same answer bit for bit.
-TEST_F(ColdAccuracy, PdgLocalSearchAnswersAreRepeatable) {
-  std::map<std::string, const ColdPair*> by_name;
-  for (const ColdPair& p : *pairs_) by_name[p.name] = &p;
-  pd::PenetrationRequest request;
-  request.use_coherence = false;
-  request.pdg_iteration_budget = 0;
-  int compared = 0;
-  for (std::size_t i = 0; i < poses_->size(); i += 4) {
-    const ColdPose& pose = (*poses_)[i];
-    const ColdPair& pair = *by_name.at(pose.pair);
-    pd::PenetrationResult first, second;
-    pd::PdgQueryData a, b;
-    pd::ComputePdg(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), request, &a, &first);
-    pd::ComputePdg(*pair.probe, pose.X_WA, *pair.scene, Pose::Identity(), request, &b, &second);
-    ASSERT_EQ(first.status, second.status) << pose.pair << " pose " << i;
-    EXPECT_EQ(first.sigma, second.sigma) << pose.pair << " pose " << i;
-    EXPECT_EQ(first.X_WA_result.t, second.X_WA_result.t) << pose.pair << " pose " << i;
-    EXPECT_EQ(first.X_WA_result.R, second.X_WA_result.R) << pose.pair << " pose " << i;
-    ++compared;
-  }
-  EXPECT_GE(compared, 10);
-}
-
 // The answers of `compute` (ComputePdt or ComputePdg, with its query data
 // type Data) at `pose` under `a` and `b`, each on fresh query data.
 template <typename Data, typename Compute>
@@ -212,22 +197,45 @@ std::pair<pd::PenetrationResult, pd::PenetrationResult> AnswersUnder(
   return r;
 }
 
+// A cold query as one-shot queries run it: no coherence, no work budget.
+pd::PenetrationRequest UnbudgetedCold() {
+  pd::PenetrationRequest r;
+  r.use_coherence = false;
+  r.pdg_iteration_budget = 0;
+  return r;
+}
+
+// The local search's generator has a fixed seed: a cold query asked twice,
+// each time on fresh query data, gives the same answer bit for bit.
+TEST_F(ColdAccuracy, PdgLocalSearchAnswersAreRepeatable) {
+  const pd::PenetrationRequest request = UnbudgetedCold();
+  int compared = 0;
+  for (std::size_t i = 0; i < poses_->size(); i += 4) {
+    const ColdPose& pose = (*poses_)[i];
+    const ColdPair& pair = PairOf(pose);
+    const auto [first, second] =
+        AnswersUnder<pd::PdgQueryData>(pd::ComputePdg, pair, pose, request, request);
+    ASSERT_EQ(first.status, second.status) << pose.pair << " pose " << i;
+    EXPECT_EQ(first.sigma, second.sigma) << pose.pair << " pose " << i;
+    EXPECT_EQ(first.X_WA_result.t, second.X_WA_result.t) << pose.pair << " pose " << i;
+    EXPECT_EQ(first.X_WA_result.R, second.X_WA_result.R) << pose.pair << " pose " << i;
+    ++compared;
+  }
+  EXPECT_GE(compared, 10);
+}
+
 // The interior cull (PenetrationRequest::cold_interior_cull) drops a start
 // only where the exact check would find it colliding: every PDt answer and
 // every unbudgeted PDg answer is the same with it off, bit for bit, and
 // against the closed scenes PDt runs far fewer sweeps with it.
 TEST_F(ColdAccuracy, InteriorCullKeepsEveryAnswerWithFewerSweeps) {
-  std::map<std::string, const ColdPair*> by_name;
-  for (const ColdPair& p : *pairs_) by_name[p.name] = &p;
-  pd::PenetrationRequest on;
-  on.use_coherence = false;
-  on.pdg_iteration_budget = 0;
+  const pd::PenetrationRequest on = UnbudgetedCold();
   pd::PenetrationRequest off = on;
   off.cold_interior_cull = false;
   long sweeps_on = 0, sweeps_off = 0;
   int closed_scene_poses = 0;
   for (const ColdPose& pose : *poses_) {
-    const ColdPair& pair = *by_name.at(pose.pair);
+    const ColdPair& pair = PairOf(pose);
     SCOPED_TRACE(pair.name + " at depth " + std::to_string(pose.depth_fraction));
     const auto [t_on, t_off] = AnswersUnder<pd::PdQueryData>(pd::ComputePdt, pair, pose, on, off);
     ASSERT_EQ(t_on.status, t_off.status);
@@ -252,8 +260,6 @@ TEST_F(ColdAccuracy, InteriorCullKeepsEveryAnswerWithFewerSweeps) {
 // and its answers are as good as those of refining every contact as it
 // comes (no answer more than 1 % deeper, and as many shallower as deeper).
 TEST_F(ColdAccuracy, ContactsFirstRefinesLessWithAnswersAsGood) {
-  std::map<std::string, const ColdPair*> by_name;
-  for (const ColdPair& p : *pairs_) by_name[p.name] = &p;
   pd::PenetrationRequest first;
   first.use_coherence = false;
   pd::PenetrationRequest as_found = first;
@@ -261,7 +267,7 @@ TEST_F(ColdAccuracy, ContactsFirstRefinesLessWithAnswersAsGood) {
   long iterations_first = 0, iterations_as_found = 0;
   int deeper = 0, shallower = 0;
   for (const ColdPose& pose : *poses_) {
-    const ColdPair& pair = *by_name.at(pose.pair);
+    const ColdPair& pair = PairOf(pose);
     if (pair.convex) continue;  // answered exactly, without the search
     SCOPED_TRACE(pair.name + " at depth " + std::to_string(pose.depth_fraction));
     const auto [a, b] = AnswersUnder<pd::PdQueryData>(pd::ComputePdt, pair, pose, first, as_found);
